@@ -1,0 +1,327 @@
+"""The typed Python client of a fleetsim daemon.
+
+One zenoh session per client; every call is a query with a deadline, so nothing waits
+forever, and a missing daemon is reported at once with the endpoint that was tried::
+
+    from clients import FleetClient
+
+    with FleetClient() as fleet:                      # tcp/127.0.0.1:7447, prefix "fleet"
+        robot = fleet.spawn("tb3_0", x=-2.0, y=-0.5)
+        fleet.drive("tb3_0", 0.1, 0.0)
+        odom = fleet.wait_odom("tb3_0")
+        print(odom.pose.pose.position)
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any, TypeVar
+
+import msgspec
+import zenoh
+
+from protocol.codec import decode, encode
+from protocol.control import (
+    Clock,
+    DeleteRequest,
+    ResetRequest,
+    RobotList,
+    RobotRecord,
+    SpawnRequest,
+    StepRequest,
+    WorldInfo,
+)
+from protocol.errors import ErrorCode, ErrorReply, FleetError
+from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.messages import LaserScan, Odometry, Twist, Vector3
+from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions
+
+T = TypeVar("T")
+
+DEFAULT_TIMEOUT = 3.0
+
+
+class Subscription:
+    """A live subscription; ``close()`` (or leaving a ``with`` block) ends it."""
+
+    def __init__(self, entity: Any) -> None:
+        self._entity = entity
+
+    def close(self) -> None:
+        if self._entity is not None:
+            try:
+                self._entity.undeclare()
+            except zenoh.ZError:
+                pass
+            self._entity = None
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+class FleetClient:
+    """Connects to a daemon (or a zenoh router in front of it) and speaks its protocol."""
+
+    def __init__(
+        self,
+        connect: str | list[str] | None = None,
+        *,
+        prefix: str = DEFAULT_PREFIX,
+        timeout: float = DEFAULT_TIMEOUT,
+        options: ZenohOptions | None = None,
+    ) -> None:
+        if options is None:
+            endpoints = [connect] if isinstance(connect, str) else list(connect or [DEFAULT_ENDPOINT])
+            options = ZenohOptions(mode="client", connect=endpoints)
+        self.options = options
+        self.keys = Keys(prefix)
+        self.timeout = timeout
+        conf = options.build()
+        if options.mode == "client":
+            # fail within the timeout instead of hanging when nothing listens there
+            conf.insert_json5("connect/timeout_ms", str(int(timeout * 1000)))
+        try:
+            self.session = zenoh.open(conf)
+        except zenoh.ZError as e:
+            raise FleetError(
+                ErrorCode.UNAVAILABLE,
+                f"cannot reach a fleetsim daemon at {options.endpoints()}: {_short(e)} "
+                "(is simd running? start it with: simd)",
+            ) from None
+        self._subs: list[Subscription] = []
+
+    # -- lifecycle ------------------------------------------------------------------------
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.close()
+        self._subs.clear()
+        self.session.close()
+
+    def __enter__(self) -> FleetClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- queries --------------------------------------------------------------------------
+
+    def _query(self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None) -> T:
+        deadline = self.timeout if timeout is None else timeout
+        payload = encode(request) if request is not None else None
+        replies = self.session.get(
+            f"{key}?format=msgpack",
+            payload=payload,
+            encoding="application/msgpack",
+            timeout=deadline,
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                return decode(reply.ok.payload.to_bytes(), reply_type)
+            err = reply.err
+            assert err is not None
+            raw = err.payload.to_bytes()
+            if raw == b"Timeout":
+                raise FleetError(
+                    ErrorCode.TIMEOUT,
+                    f"the daemon did not answer {key} within {deadline:g} s",
+                )
+            try:
+                info = decode(raw, ErrorReply)
+            except FleetError:
+                raise FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace")) from None
+            raise FleetError.from_reply(info)
+        raise FleetError(
+            ErrorCode.UNAVAILABLE,
+            f"no fleetsim daemon answered on {key} via {self.options.endpoints()} "
+            "(is simd running with the same --prefix?)",
+        )
+
+    def spawn(
+        self,
+        name: str,
+        x: float = 0.0,
+        y: float = 0.0,
+        yaw: float = 0.0,
+        *,
+        model: str = "burger",
+        namespace: str | None = None,
+    ) -> RobotRecord:
+        """Spawn a robot; returns its record once it is live. Raises FleetError if refused."""
+        req = SpawnRequest(name=name, namespace=namespace, model=model, x=x, y=y, yaw=yaw)
+        return self._query(self.keys.spawn, req, RobotRecord)
+
+    def delete(self, name: str) -> RobotRecord:
+        """Delete a robot by name or namespace; returns its last record."""
+        return self._query(self.keys.delete, DeleteRequest(name=name), RobotRecord)
+
+    def robots(self) -> list[RobotRecord]:
+        return self._query(self.keys.robots, None, RobotList).robots
+
+    def robot(self, key: str) -> RobotRecord | None:
+        """The record of a robot by name or namespace, or None."""
+        return next((r for r in self.robots() if key in (r.name, r.namespace)), None)
+
+    def world(self) -> WorldInfo:
+        return self._query(self.keys.world, None, WorldInfo)
+
+    def clock(self) -> Clock:
+        return self._query(self.keys.clock, None, Clock)
+
+    def pause(self) -> Clock:
+        return self._query(self.keys.pause, None, Clock)
+
+    def resume(self) -> Clock:
+        return self._query(self.keys.resume, None, Clock)
+
+    def reset(self, seed: int | None = None) -> Clock:
+        return self._query(self.keys.reset, ResetRequest(seed=seed), Clock)
+
+    def step(
+        self, ticks: int = 1, cmd_vel: dict[str, tuple[float, float]] | None = None, timeout: float | None = None
+    ) -> Clock:
+        """Advance ``ticks`` ticks of a paused or lockstep daemon, applying ``cmd_vel``
+        ({namespace: (linear, angular)}) first. Returns after the ticks ran."""
+        cmds = {
+            ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()
+        }
+        return self._query(self.keys.step, StepRequest(ticks=ticks, cmd_vel=cmds), Clock, timeout)
+
+    # -- motion ---------------------------------------------------------------------------
+
+    def drive(self, namespace: str, linear: float, angular: float) -> None:
+        """Put one cmd_vel. The daemon stops a robot 0.5 s after its last command."""
+        msg = Twist(linear=Vector3(x=linear), angular=Vector3(z=angular))
+        self.session.put(self.keys.cmd_vel(namespace), encode(msg), encoding="application/msgpack")
+
+    def stop(self, namespace: str) -> None:
+        self.drive(namespace, 0.0, 0.0)
+
+    # -- presence -------------------------------------------------------------------------
+
+    def alive(self) -> list[str]:
+        """Namespaces of the live robots, from their liveliness tokens."""
+        out = []
+        for r in self.session.liveliness().get(f"{self.keys.prefix}/*/alive", timeout=self.timeout):
+            if r.ok is not None:
+                ns = self.keys.namespace_of(str(r.ok.key_expr))
+                if ns:
+                    out.append(ns)
+        return sorted(out)
+
+    def on_presence(self, callback: Callable[[str, bool], None]) -> Subscription:
+        """Call ``callback(namespace, alive)`` for robots present now and as they come and go."""
+
+        def handler(sample: zenoh.Sample) -> None:
+            ns = self.keys.namespace_of(str(sample.key_expr))
+            if ns:
+                callback(ns, sample.kind == zenoh.SampleKind.PUT)
+
+        sub = Subscription(
+            self.session.liveliness().declare_subscriber(f"{self.keys.prefix}/*/alive", handler, history=True)
+        )
+        self._subs.append(sub)
+        return sub
+
+    def wait_for_robot(self, namespace: str, timeout: float = 10.0) -> bool:
+        """Block until the robot's liveliness token exists; False on timeout."""
+        seen = threading.Event()
+
+        def cb(ns: str, up: bool) -> None:
+            if ns == namespace and up:
+                seen.set()
+
+        with self.on_presence(cb):
+            return seen.wait(timeout)
+
+    # -- sensors --------------------------------------------------------------------------
+
+    def _subscribe(self, topic: str, namespace: str, type_: type[T], callback: Callable[[str, T], None]) -> Subscription:
+        dec = msgspec.msgpack.Decoder(type_)
+
+        def handler(sample: zenoh.Sample) -> None:
+            ns = self.keys.namespace_of(str(sample.key_expr))
+            if ns is None:
+                return
+            try:
+                msg = dec.decode(sample.payload.to_bytes())
+            except msgspec.DecodeError:
+                return
+            callback(ns, msg)
+
+        sub = Subscription(self.session.declare_subscriber(f"{self.keys.prefix}/{namespace}/{topic}", handler))
+        self._subs.append(sub)
+        return sub
+
+    def on_odom(self, namespace: str, callback: Callable[[str, Odometry], None]) -> Subscription:
+        """``callback(namespace, odom)`` for every odometry message; ``namespace`` may be ``*``."""
+        return self._subscribe("odom", namespace, Odometry, callback)
+
+    def on_scan(self, namespace: str, callback: Callable[[str, LaserScan], None]) -> Subscription:
+        """``callback(namespace, scan)`` per scan; ``scan.ranges_array()`` is a numpy view."""
+        return self._subscribe("scan", namespace, LaserScan, callback)
+
+    def _iterate(self, topic: str, namespace: str, type_: type[T], timeout: float | None) -> Iterator[tuple[str, T]]:
+        q: queue.Queue[tuple[str, T]] = queue.Queue(maxsize=1024)
+
+        def put(ns: str, msg: T) -> None:
+            try:
+                q.put_nowait((ns, msg))
+            except queue.Full:  # a slow consumer loses the oldest-newest, never blocks zenoh
+                pass
+
+        with self._subscribe(topic, namespace, type_, put):
+            while True:
+                try:
+                    yield q.get(timeout=timeout)
+                except queue.Empty:
+                    return
+
+    def odom_stream(self, namespace: str, timeout: float | None = 5.0) -> Iterator[tuple[str, Odometry]]:
+        """Iterate (namespace, Odometry); ends when nothing arrives for ``timeout`` s."""
+        return self._iterate("odom", namespace, Odometry, timeout)
+
+    def scan_stream(self, namespace: str, timeout: float | None = 5.0) -> Iterator[tuple[str, LaserScan]]:
+        return self._iterate("scan", namespace, LaserScan, timeout)
+
+    def wait_odom(self, namespace: str, timeout: float = 5.0) -> Odometry:
+        """The next odometry message of a robot."""
+        for _, msg in self.odom_stream(namespace, timeout):
+            return msg
+        raise FleetError(ErrorCode.TIMEOUT, f"no odometry from {namespace!r} within {timeout:g} s")
+
+    def wait_scan(self, namespace: str, timeout: float = 5.0) -> LaserScan:
+        for _, msg in self.scan_stream(namespace, timeout):
+            return msg
+        raise FleetError(ErrorCode.TIMEOUT, f"no scan from {namespace!r} within {timeout:g} s")
+
+    def latest_odom(self, namespace: str) -> Odometry | None:
+        """The daemon's most recent odometry of a robot (a query, no subscription)."""
+        for r in self.session.get(f"{self.keys.odom(namespace)}", timeout=self.timeout):
+            if r.ok is not None:
+                return decode(r.ok.payload.to_bytes(), Odometry)
+        return None
+
+
+def _short(e: BaseException) -> str:
+    msg = str(e).strip()
+    cut = msg.rfind(" at ")
+    if cut > 0 and ".rs:" in msg[cut:]:
+        msg = msg[:cut]
+    return msg
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float, interval: float = 0.02) -> bool:
+    """Poll ``predicate`` until true or ``timeout`` s pass (for scripts and tests)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return predicate()

@@ -1,0 +1,75 @@
+"""One decoder per input, accepting MessagePack or JSON; encoders for both.
+
+The daemon's inputs must decode from JSON too, so that a person can drive the simulation
+with zenoh's own CLI. The two are told apart by the first byte: a JSON object starts with
+``{`` (after optional whitespace), which as MessagePack would be the integer 123 and never
+a valid message. An empty payload decodes as ``{}`` (every field defaulted), so that
+``zenoh get -s fleet/sim/pause`` works with no body.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Literal, TypeVar
+
+import msgspec
+
+from protocol.errors import ErrorCode, FleetError
+
+T = TypeVar("T")
+Format = Literal["msgpack", "json"]
+
+MSGPACK = "application/msgpack"
+JSON = "application/json"
+
+_msgpack_encoder = msgspec.msgpack.Encoder()
+_json_encoder = msgspec.json.Encoder()
+_decoders: dict[type[Any], tuple[msgspec.msgpack.Decoder[Any], msgspec.json.Decoder[Any]]] = {}
+
+_JSON_START = frozenset(b" \t\r\n{")
+
+
+def sniff_format(payload: bytes) -> Format:
+    """``json`` if the payload looks like a JSON object, else ``msgpack``."""
+    return "json" if payload[:1] and payload[0] in _JSON_START else "msgpack"
+
+
+def _pair(type_: type[T]) -> tuple[msgspec.msgpack.Decoder[T], msgspec.json.Decoder[T]]:
+    pair = _decoders.get(type_)
+    if pair is None:
+        pair = (msgspec.msgpack.Decoder(type_), msgspec.json.Decoder(type_))
+        _decoders[type_] = pair
+    return pair
+
+
+def decode(payload: bytes, type_: type[T]) -> T:
+    """Decode ``payload`` (MessagePack or JSON) into ``type_``; raise ``FleetError(MALFORMED)``."""
+    mp, js = _pair(type_)
+    fmt = sniff_format(payload) if payload else "json"
+    try:
+        if fmt == "json":
+            return js.decode(payload if payload.strip() else b"{}")
+        return mp.decode(payload)
+    except msgspec.ValidationError as e:
+        field = _field_of(str(e))
+        raise FleetError(ErrorCode.MALFORMED, f"invalid {type_.__name__}: {e}", field) from None
+    except msgspec.DecodeError as e:
+        raise FleetError(
+            ErrorCode.MALFORMED, f"payload is not valid {fmt} for {type_.__name__}: {e}"
+        ) from None
+
+
+def _field_of(message: str) -> str | None:
+    """msgspec says ``... - at `$.name```; return ``name``."""
+    marker = "at `$."
+    i = message.rfind(marker)
+    if i < 0:
+        return None
+    return message[i + len(marker) :].rstrip("`")
+
+
+def encode(obj: Any, fmt: Format = "msgpack") -> bytes:
+    return _json_encoder.encode(obj) if fmt == "json" else _msgpack_encoder.encode(obj)
+
+
+def media_type(fmt: Format) -> str:
+    return JSON if fmt == "json" else MSGPACK

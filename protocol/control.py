@@ -1,0 +1,146 @@
+"""Requests and replies of the daemon's control keys (spawn, delete, list, world, clock, sim)."""
+
+from __future__ import annotations
+
+import msgspec
+
+from protocol.messages import Time, Twist
+
+MODELS = ("burger", "waffle", "waffle_pi")
+
+
+class Pose2D(msgspec.Struct, kw_only=True):
+    """A planar pose in the world frame (metres, radians)."""
+
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+
+
+class SpawnRequest(msgspec.Struct, kw_only=True):
+    """``P/spawn``. ``namespace`` defaults to ``name``; ``model`` to ``burger``."""
+
+    name: str
+    namespace: str | None = None
+    model: str = "burger"
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0
+
+
+class DeleteRequest(msgspec.Struct, kw_only=True):
+    """``P/delete``: a robot's name or its namespace."""
+
+    name: str
+
+
+class StepRequest(msgspec.Struct, kw_only=True):
+    """``P/sim/step``: advance ``ticks`` fixed steps (1/30 s each) while paused or in lockstep.
+
+    ``cmd_vel`` maps namespaces to commands applied before the first tick, so a lockstep
+    client's command and step cannot race each other on different zenoh threads.
+    """
+
+    ticks: int = 1
+    cmd_vel: dict[str, Twist] = msgspec.field(default_factory=dict)
+
+
+class ResetRequest(msgspec.Struct, kw_only=True):
+    """``P/sim/reset``: time to zero, robots back to their spawn poses, noise reseeded.
+
+    ``seed`` replaces the daemon's seed when given.
+    """
+
+    seed: int | None = None
+
+
+class EmptyRequest(msgspec.Struct, kw_only=True):
+    """Requests that carry nothing (list, world, clock, pause, resume)."""
+
+
+class Topics(msgspec.Struct, kw_only=True):
+    """The concrete keys of one robot."""
+
+    cmd_vel: str
+    odom: str
+    scan: str
+    alive: str
+
+
+class Frames(msgspec.Struct, kw_only=True):
+    """TF frame names, namespaced as the TurtleBot3 multi-robot launch does (no leading slash)."""
+
+    odom: str
+    base_footprint: str
+    base_scan: str
+
+
+class ModelLimits(msgspec.Struct, kw_only=True):
+    max_linear_velocity: float
+    max_angular_velocity: float
+    wheel_separation: float
+    wheel_radius: float
+    max_wheel_acceleration: float
+
+
+class RobotRecord(msgspec.Struct, kw_only=True):
+    """One live robot, as spawn, delete and list report it."""
+
+    name: str
+    namespace: str
+    model: str
+    pose: Pose2D
+    linear_velocity: float = 0.0
+    angular_velocity: float = 0.0
+    spawn_pose: Pose2D = msgspec.field(default_factory=Pose2D)
+    limits: ModelLimits | None = None
+    #: The outline of the robot in its body frame (``base_footprint``), counter-clockwise.
+    footprint: list[tuple[float, float]] = msgspec.field(default_factory=list)
+    topics: Topics | None = None
+    frames: Frames | None = None
+
+
+class RobotList(msgspec.Struct, kw_only=True):
+    stamp: Time
+    robots: list[RobotRecord]
+
+
+class Bounds(msgspec.Struct, kw_only=True):
+    x_min: float
+    x_max: float
+    y_min: float
+    y_max: float
+
+
+class Circle(msgspec.Struct, kw_only=True):
+    x: float
+    y: float
+    radius: float
+
+
+class WorldInfo(msgspec.Struct, kw_only=True):
+    """``P/world``: the loaded world's static geometry, for viewers and mappers."""
+
+    name: str
+    bounds: Bounds
+    default_spawn: Pose2D
+    #: Convex polygons, each a list of (x, y) vertices, counter-clockwise.
+    polygons: list[list[tuple[float, float]]]
+    circles: list[Circle]
+
+
+class Clock(msgspec.Struct, kw_only=True):
+    """``P/clock`` (published at 10 Hz sim time, and the reply of every ``P/sim/*`` request)."""
+
+    clock: Time
+    tick: int
+    dt: float
+    paused: bool
+    lockstep: bool
+    #: Measured sim seconds per wall second over the last second (0 while paused).
+    real_time_factor: float
+    #: Requested real-time factor; 0 means as fast as possible.
+    target_real_time_factor: float
+    robots: int
+    #: cmd_vel messages dropped because they did not decode or were not finite.
+    dropped_commands: int = 0

@@ -1,0 +1,99 @@
+"""The key space. ``P`` is the daemon's prefix (``fleet`` by default).
+
+=====================  ==========================  ==========  ======================================
+key                    declared by simd as         payload     reply / notes
+=====================  ==========================  ==========  ======================================
+``P/spawn``            queryable                   SpawnRequest   RobotRecord
+``P/delete``           queryable                   DeleteRequest  RobotRecord of the removed robot
+``P/robots``           queryable                   (none)      RobotList
+``P/world``            queryable                   (none)      WorldInfo
+``P/clock``            publisher 10 Hz + queryable (none)      Clock
+``P/sim/pause``        queryable                   (none)      Clock
+``P/sim/resume``       queryable                   (none)      Clock
+``P/sim/reset``        queryable                   ResetRequest   Clock
+``P/sim/step``         queryable                   StepRequest    Clock, after the ticks ran
+``P/<ns>/cmd_vel``     subscriber                  Twist
+``P/<ns>/odom``        publisher 30 Hz + queryable Odometry    a get returns the latest message
+``P/<ns>/scan``        publisher 5 Hz + queryable  LaserScan   a get returns the latest message
+``P/<ns>/alive``       liveliness token            --          present while the robot lives
+=====================  ==========================  ==========  ======================================
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from protocol.names import check_prefix
+
+DEFAULT_PREFIX = "fleet"
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions under one prefix."""
+
+    prefix: str = DEFAULT_PREFIX
+
+    def __post_init__(self) -> None:
+        check_prefix(self.prefix)
+
+    def _k(self, *chunks: str) -> str:
+        return "/".join((self.prefix, *chunks))
+
+    @property
+    def spawn(self) -> str:
+        return self._k("spawn")
+
+    @property
+    def delete(self) -> str:
+        return self._k("delete")
+
+    @property
+    def robots(self) -> str:
+        return self._k("robots")
+
+    @property
+    def world(self) -> str:
+        return self._k("world")
+
+    @property
+    def clock(self) -> str:
+        return self._k("clock")
+
+    @property
+    def pause(self) -> str:
+        return self._k("sim", "pause")
+
+    @property
+    def resume(self) -> str:
+        return self._k("sim", "resume")
+
+    @property
+    def reset(self) -> str:
+        return self._k("sim", "reset")
+
+    @property
+    def step(self) -> str:
+        return self._k("sim", "step")
+
+    def cmd_vel(self, ns: str) -> str:
+        return self._k(ns, "cmd_vel")
+
+    def odom(self, ns: str) -> str:
+        return self._k(ns, "odom")
+
+    def scan(self, ns: str) -> str:
+        return self._k(ns, "scan")
+
+    def alive(self, ns: str) -> str:
+        return self._k(ns, "alive")
+
+    def namespace_of(self, key: str) -> str | None:
+        """The ``<ns>`` chunk of ``P/<ns>/<topic>``, or None if ``key`` has another shape."""
+        head = self.prefix + "/"
+        if not key.startswith(head):
+            return None
+        rest = key[len(head) :].split("/")
+        if len(rest) != 2:
+            return None
+        return rest[0]

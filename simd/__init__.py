@@ -1,0 +1,1 @@
+"""simd: the fleetsim simulation daemon (core in world/robots/lidar/sim; network layer in net)."""

@@ -1,0 +1,139 @@
+"""``simd``: the command line of the simulation daemon."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from types import FrameType
+
+from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.zenoh_config import add_zenoh_args, options_from_args
+
+log = logging.getLogger("simd")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="simd",
+        description="Headless 2D TurtleBot3 fleet simulator served over Zenoh.",
+        epilog="Spawn a robot: zenoh get -s fleet/spawn -v '{\"name\": \"tb3_0\", \"x\": -2.0, \"y\": -0.5}' "
+        "(see the README for the whole key space).",
+    )
+    p.add_argument("--world", default="turtlebot3_world",
+                   help="world name (turtlebot3_world, turtlebot3_house, empty) or path to a world YAML file")  # fmt: skip
+    p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
+    p.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
+    p.add_argument("--rtf", type=float, default=1.0,
+                   help="target real-time factor; 0 runs as fast as possible (default: %(default)s)")  # fmt: skip
+    p.add_argument("--no-noise", action="store_true", help="turn the lidar noise off")
+    p.add_argument("--cmd-timeout", type=float, default=0.5,
+                   help="seconds of sim time without cmd_vel before a robot stops; 0 = never (default: %(default)s)")  # fmt: skip
+    p.add_argument("--max-robots", type=int, default=5000, help="robot limit (default: %(default)s)")
+    p.add_argument("--lockstep", action="store_true",
+                   help="advance only when a client asks (sim/step), for deterministic tests and learning loops")  # fmt: skip
+    p.add_argument("--paused", action="store_true", help="start paused")
+    p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
+    add_zenoh_args(p, server=True)
+    return p
+
+
+def fail(message: str) -> int:
+    print(f"simd: error: {message}", file=sys.stderr, flush=True)
+    return 2
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if hasattr(sys.stdout, "reconfigure"):
+        sys.stdout.reconfigure(line_buffering=True)
+    logging.basicConfig(
+        level=args.log_level.upper(), stream=sys.stdout, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    if args.rtf < 0:
+        return fail("--rtf must be >= 0")
+    if args.cmd_timeout < 0:
+        return fail("--cmd-timeout must be >= 0")
+    if args.max_robots < 1:
+        return fail("--max-robots must be >= 1")
+    if args.seed < 0:
+        return fail("--seed must be >= 0")
+    try:
+        keys = Keys(args.prefix)
+    except ValueError as e:
+        return fail(str(e))
+
+    from simd.worldfile import WorldFileError, load_world
+
+    try:
+        world = load_world(args.world)
+    except WorldFileError as e:
+        return fail(str(e))
+
+    import zenoh
+
+    from simd.daemon import Daemon
+    from simd.net import Bridge
+    from simd.sim import SimConfig, Simulation
+
+    sim = Simulation(
+        world,
+        SimConfig(seed=args.seed, noise=not args.no_noise, cmd_timeout=args.cmd_timeout, max_robots=args.max_robots),
+    )
+    opts = options_from_args(args, server=True)
+    try:
+        conf = opts.build()
+    except (ValueError, zenoh.ZError) as e:
+        return fail(f"bad zenoh configuration: {_short(e)}")
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as e:
+        msg = _short(e)
+        if "in use" in msg.lower():
+            return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
+        return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
+    daemon: Daemon | None = None
+    try:
+        bridge = Bridge(session, keys)
+        daemon = Daemon(sim, bridge, keys, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused)
+
+        def on_signal(signum: int, frame: FrameType | None) -> None:
+            log.info("received %s, stopping", signal.Signals(signum).name)
+            assert daemon is not None
+            daemon.stop()
+
+        signal.signal(signal.SIGINT, on_signal)
+        signal.signal(signal.SIGTERM, on_signal)
+        x, y, yaw = world.default_spawn
+        mode = "lockstep" if args.lockstep else ("paused" if args.paused else f"rtf {args.rtf:g}")
+        print(
+            f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; "
+            f"listening on {', '.join(opts.listen) or '(config file)'}; prefix '{keys.prefix}'",
+            flush=True,
+        )
+        print(
+            f"simd: spawn a robot with: fleet-spawn tb3_0 --x {x:g} --y {y:g}   "
+            f"(or zenoh get -s {keys.spawn} -v '{{\"name\": \"tb3_0\", \"x\": {x:g}, \"y\": {y:g}}}')",
+            flush=True,
+        )
+        daemon.run()
+    finally:
+        if daemon is not None:
+            daemon.bridge.close()
+        session.close()
+    log.info("stopped at sim time %.3f s", sim.time)
+    return 0
+
+
+def _short(e: BaseException) -> str:
+    """zenoh errors end with ' at /path/to/file.rs:NN'; keep the message."""
+    msg = str(e).strip()
+    cut = msg.rfind(" at ")
+    if cut > 0 and msg.endswith(tuple("0123456789")) and ".rs:" in msg[cut:]:
+        msg = msg[:cut]
+    return msg
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,231 @@
+"""The simulation loop: one thread owns the simulation, paces it, serves requests.
+
+It wakes for whichever comes first, the next tick's deadline or a control request, so
+spawns are answered within milliseconds while ticks stay on a fixed sim-time grid. In
+lockstep mode time advances only through ``P/sim/step``.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+import logging
+import queue
+import threading
+import time
+
+from protocol.codec import decode
+from protocol.control import Clock, DeleteRequest, RobotList, ResetRequest, SpawnRequest, StepRequest
+from protocol.errors import ErrorCode, FleetError
+from protocol.keys import Keys
+from protocol.messages import Time
+from simd import convert
+from simd.net import Bridge, Request, reply_error, reply_ok
+from simd.sim import Simulation, TickOutput
+
+log = logging.getLogger(__name__)
+
+#: Most ticks one step request may ask for (about 9 hours of sim time).
+MAX_STEP_TICKS = 1_000_000
+#: Ticks between clock messages: 10 Hz, as gazebo_ros publishes /clock.
+CLOCK_EVERY = 3
+#: If the loop falls this many ticks behind its schedule it stops trying to catch up.
+MAX_LAG_TICKS = 5
+
+
+class Daemon:
+    def __init__(
+        self,
+        sim: Simulation,
+        bridge: Bridge,
+        keys: Keys,
+        *,
+        rtf: float = 1.0,
+        lockstep: bool = False,
+        paused: bool = False,
+    ) -> None:
+        self.sim = sim
+        self.bridge = bridge
+        self.keys = keys
+        self.rtf = rtf
+        self.lockstep = lockstep
+        self.paused = paused or lockstep
+        self.stop_event = threading.Event()
+        self._rtf_window: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
+        self._world_info = convert.world_info(sim.world)
+
+    # -- status ---------------------------------------------------------------------------
+
+    def measured_rtf(self) -> float:
+        w = self._rtf_window
+        if self.paused or len(w) < 2:
+            return 0.0
+        (w0, s0), (w1, s1) = w[0], w[-1]
+        return (s1 - s0) / (w1 - w0) if w1 > w0 else 0.0
+
+    def clock(self) -> Clock:
+        return Clock(
+            clock=Time.from_seconds(self.sim.time),
+            tick=self.sim.tick,
+            dt=self.sim.config.dt,
+            paused=self.paused,
+            lockstep=self.lockstep,
+            real_time_factor=self.measured_rtf(),
+            target_real_time_factor=self.rtf,
+            robots=len(self.sim),
+            dropped_commands=self.bridge.dropped_commands,
+        )
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        try:
+            self.bridge.requests.put_nowait(None)  # wake the loop
+        except queue.Full:
+            pass
+
+    # -- the loop -------------------------------------------------------------------------
+
+    def run(self) -> None:
+        period = self.sim.config.dt / self.rtf if self.rtf > 0 else 0.0
+        next_tick = time.monotonic()
+        while not self.stop_event.is_set():
+            now = time.monotonic()
+            timeout = max(0.0, next_tick - now) if not self.paused else 0.25
+            try:
+                req = self.bridge.requests.get(timeout=timeout) if timeout > 0 else self.bridge.requests.get_nowait()
+            except queue.Empty:
+                req = None
+            if req is not None:
+                self._serve(req)
+                continue
+            if self.paused:
+                next_tick = time.monotonic()
+                continue
+            if time.monotonic() >= next_tick:
+                self.tick()
+                next_tick += period
+                now = time.monotonic()
+                if now - next_tick > MAX_LAG_TICKS * period:
+                    next_tick = now  # fell behind: run slower than real time rather than burst
+
+    def tick(self) -> TickOutput:
+        """Apply commands, step once, publish the tick's messages."""
+        sim = self.sim
+        sim.command_many(self.bridge.take_commands())
+        out = sim.step()
+        odom = convert.encode_odometry(out)
+        scans = convert.encode_scans(out, sim.config.lidar)
+        self.bridge.publish(out.namespaces, odom, out.scan_namespaces, scans)
+        self._rtf_window.append((time.monotonic(), out.time))
+        if out.tick % CLOCK_EVERY == 0:
+            self._publish_clock()
+        return out
+
+    def _publish_clock(self) -> None:
+        from protocol.codec import encode
+
+        self.bridge.clock_pub.put(encode(self.clock()))
+
+    # -- requests -------------------------------------------------------------------------
+
+    def _serve(self, req: Request) -> None:
+        key = self.bridge.control_keys[req.kind]
+        try:
+            result = getattr(self, f"_on_{req.kind}")(req)
+            reply_ok(req, key, result)
+        except FleetError as e:
+            log.info("%s refused: %s", req.kind, e)
+            reply_error(req, e)
+        except Exception as e:  # a bug must not kill the daemon; the client gets told
+            log.exception("%s failed", req.kind)
+            reply_error(req, FleetError(ErrorCode.MALFORMED, f"internal error: {type(e).__name__}: {e}"))
+        finally:
+            req.query.drop()
+
+    def _on_spawn(self, req: Request) -> object:
+        spawn = decode(req.payload, SpawnRequest)
+        robot = self.sim.spawn(spawn)
+        self.bridge.add_robot(robot.namespace)
+        state = self.sim.state(robot)
+        # its first odometry now, so a robot is never silent, even while paused
+        first = convert.odometry(
+            robot.namespace, Time.from_seconds(self.sim.time), state.x, state.y, state.yaw, 0.0, 0.0, 0.0
+        )
+        from protocol.codec import encode
+
+        data = encode(first)
+        self.bridge.publish([robot.namespace], [data], [], [])
+        log.info("spawned %s (%s) at (%.3f, %.3f, %.3f) ns=%s", robot.name, robot.model.name,
+                 state.x, state.y, state.yaw, robot.namespace)  # fmt: skip
+        return convert.robot_record(state, self.keys)
+
+    def _on_delete(self, req: Request) -> object:
+        d = decode(req.payload, DeleteRequest)
+        last = self.sim.delete(d.name)
+        self.bridge.remove_robot(last.namespace)
+        log.info("deleted %s", last.name)
+        return convert.robot_record(last, self.keys)
+
+    def _on_robots(self, req: Request) -> object:
+        return RobotList(
+            stamp=Time.from_seconds(self.sim.time),
+            robots=[convert.robot_record(s, self.keys) for s in self.sim.states()],
+        )
+
+    def _on_world(self, req: Request) -> object:
+        return self._world_info
+
+    def _on_clock(self, req: Request) -> object:
+        return self.clock()
+
+    def _on_pause(self, req: Request) -> object:
+        self.paused = True
+        self._rtf_window.clear()
+        self._publish_clock()
+        return self.clock()
+
+    def _on_resume(self, req: Request) -> object:
+        if self.lockstep:
+            raise FleetError(
+                ErrorCode.NOT_ALLOWED,
+                "the daemon runs in lockstep: time advances only through sim/step",
+            )
+        self.paused = False
+        self._rtf_window.clear()
+        self._publish_clock()
+        return self.clock()
+
+    def _on_reset(self, req: Request) -> object:
+        r = decode(req.payload, ResetRequest)
+        self.sim.reset(r.seed)
+        self.bridge.take_commands()
+        self._rtf_window.clear()
+        self._publish_clock()
+        return self.clock()
+
+    def _on_step(self, req: Request) -> object:
+        s = decode(req.payload, StepRequest)
+        if not self.paused:
+            raise FleetError(
+                ErrorCode.NOT_ALLOWED,
+                "step needs a paused simulation or --lockstep (pause it first with sim/pause)",
+            )
+        if not 1 <= s.ticks <= MAX_STEP_TICKS:
+            raise FleetError(
+                ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {s.ticks}", "ticks"
+            )
+        if s.cmd_vel:
+            cmds = {}
+            for ns, tw in s.cmd_vel.items():
+                v, w = float(tw.linear.x), float(tw.angular.z)
+                if not (math.isfinite(v) and math.isfinite(w)):
+                    raise FleetError(ErrorCode.NON_FINITE, f"cmd_vel for {ns!r} is not finite", "cmd_vel")
+                if self.sim.find(ns) is None:
+                    raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", "cmd_vel")
+                cmds[ns] = (v, w)
+            self.sim.command_many(cmds)
+        for _ in range(s.ticks):
+            if self.stop_event.is_set():
+                break
+            self.tick()
+        return self.clock()

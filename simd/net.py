@@ -1,0 +1,197 @@
+"""The network layer: maps the core to the wire protocol over one zenoh session.
+
+Zenoh callbacks never touch the simulation. cmd_vel callbacks decode the Twist (pure
+msgspec) and store the newest per namespace in a dict that the simulation thread swaps
+out at the top of each tick. Control queries are put on a bounded queue that the
+simulation thread drains; it replies from there. A flood beyond the queue's bound is
+answered ``busy`` from the callback without reaching the simulation.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import threading
+from dataclasses import dataclass
+from typing import Any
+
+import msgspec
+import zenoh
+
+from protocol.codec import Format, decode, encode, media_type, sniff_format
+from protocol.errors import ErrorCode, FleetError
+from protocol.keys import Keys
+from protocol.messages import Twist
+
+log = logging.getLogger(__name__)
+
+#: Control requests waiting for the simulation thread beyond this are refused as busy.
+MAX_PENDING_REQUESTS = 4096
+
+CONTROL_KINDS = ("spawn", "delete", "robots", "world", "clock", "pause", "resume", "reset", "step")
+
+
+@dataclass
+class Request:
+    kind: str
+    query: zenoh.Query
+    payload: bytes
+    fmt: Format
+
+
+def reply_format(query: zenoh.Query, payload: bytes) -> Format:
+    """JSON or MessagePack for the reply: ``?format=`` wins, then the request's own
+    encoding; an empty request gets JSON, which zenoh's CLI prints as it is."""
+    wanted = query.parameters.get("format")
+    if wanted in ("json", "msgpack"):
+        return wanted  # type: ignore[return-value]
+    enc = str(query.encoding) if query.encoding is not None else ""
+    if enc.startswith("application/msgpack"):
+        return "msgpack"
+    if not payload:
+        return "json"
+    return sniff_format(payload)
+
+
+def reply_ok(req: Request, key: str, obj: Any) -> None:
+    req.query.reply(key, encode(obj, req.fmt), encoding=media_type(req.fmt))
+
+
+def reply_error(req: Request, err: FleetError) -> None:
+    req.query.reply_err(encode(err.to_reply(), req.fmt), encoding=media_type(req.fmt))
+
+
+class Bridge:
+    """Declares the daemon's zenoh entities and moves data across the thread boundary."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys) -> None:
+        self.session = session
+        self.keys = keys
+        self.requests: queue.Queue[Request | None] = queue.Queue(MAX_PENDING_REQUESTS)
+        self._commands: dict[str, tuple[float, float]] = {}
+        self._lock = threading.Lock()
+        self.dropped_commands = 0
+        self._twist = msgspec.msgpack.Decoder(Twist)
+        self._odom_pub: dict[str, zenoh.Publisher] = {}
+        self._scan_pub: dict[str, zenoh.Publisher] = {}
+        self._tokens: dict[str, zenoh.LivelinessToken] = {}
+        self.latest_odom: dict[str, bytes] = {}
+        self.latest_scan: dict[str, bytes] = {}
+        self._entities: list[Any] = []
+        k = keys
+        control_keys = {
+            "spawn": k.spawn, "delete": k.delete, "robots": k.robots, "world": k.world,
+            "clock": k.clock, "pause": k.pause, "resume": k.resume, "reset": k.reset,
+            "step": k.step,
+        }  # fmt: skip
+        self.control_keys = control_keys
+        for kind, key in control_keys.items():
+            self._entities.append(session.declare_queryable(key, self._make_enqueue(kind)))
+        self._entities.append(session.declare_subscriber(f"{k.prefix}/*/cmd_vel", self._on_cmd_vel))
+        self._entities.append(
+            session.declare_queryable(f"{k.prefix}/*/odom", self._latest_answerer(self.latest_odom, "odom"))
+        )
+        self._entities.append(
+            session.declare_queryable(f"{k.prefix}/*/scan", self._latest_answerer(self.latest_scan, "scan"))
+        )
+        self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
+
+    # -- inputs (zenoh threads) -------------------------------------------------------------
+
+    def _make_enqueue(self, kind: str) -> Any:
+        def enqueue(query: zenoh.Query) -> None:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            req = Request(kind, query, payload, reply_format(query, payload))
+            try:
+                self.requests.put_nowait(req)
+            except queue.Full:
+                reply_error(req, FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry"))
+                query.drop()
+
+        return enqueue
+
+    def _on_cmd_vel(self, sample: zenoh.Sample) -> None:
+        ns = self.keys.namespace_of(str(sample.key_expr))
+        if ns is None or "*" in ns or "$" in ns:
+            self._drop()
+            return
+        payload = sample.payload.to_bytes()
+        try:
+            if payload[:1] and payload[0] in b" \t\r\n{":
+                twist = decode(payload, Twist)
+            else:
+                twist = self._twist.decode(payload)
+            v, w = float(twist.linear.x), float(twist.angular.z)
+        except (FleetError, msgspec.DecodeError, TypeError, ValueError):
+            self._drop()
+            return
+        if not (math.isfinite(v) and math.isfinite(w)):
+            self._drop()
+            return
+        with self._lock:
+            self._commands[ns] = (v, w)
+
+    def _drop(self) -> None:
+        with self._lock:
+            self.dropped_commands += 1
+
+    def take_commands(self) -> dict[str, tuple[float, float]]:
+        """The newest command per namespace since the last call (simulation thread)."""
+        with self._lock:
+            cmds, self._commands = self._commands, {}
+        return cmds
+
+    def _latest_answerer(self, cache: dict[str, bytes], topic: str) -> Any:
+        from protocol.messages import LaserScan, Odometry
+
+        type_: type[Any] = Odometry if topic == "odom" else LaserScan
+
+        def answer(query: zenoh.Query) -> None:
+            with query:
+                fmt: Format = "json" if query.parameters.get("format") == "json" else "msgpack"
+                for ns, data in list(cache.items()):
+                    key = f"{self.keys.prefix}/{ns}/{topic}"
+                    if query.key_expr.intersects(zenoh.KeyExpr(key)):
+                        body = data if fmt == "msgpack" else encode(msgspec.msgpack.decode(data, type=type_), "json")
+                        query.reply(key, body, encoding=media_type(fmt))
+
+        return answer
+
+    # -- outputs (simulation thread) --------------------------------------------------------
+
+    def add_robot(self, ns: str) -> None:
+        k = self.keys
+        self._odom_pub[ns] = self.session.declare_publisher(k.odom(ns), encoding="application/msgpack")
+        self._scan_pub[ns] = self.session.declare_publisher(k.scan(ns), encoding="application/msgpack")
+        self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
+
+    def remove_robot(self, ns: str) -> None:
+        for table in (self._odom_pub, self._scan_pub):
+            pub = table.pop(ns, None)
+            if pub is not None:
+                pub.undeclare()
+        tok = self._tokens.pop(ns, None)
+        if tok is not None:
+            tok.undeclare()
+        self.latest_odom.pop(ns, None)
+        self.latest_scan.pop(ns, None)
+
+    def publish(self, namespaces: list[str], odom: list[bytes], scan_namespaces: list[str], scans: list[bytes]) -> None:
+        """Put one tick's messages back to back (bursts amortise zenoh's wake-ups)."""
+        pubs = self._odom_pub
+        for ns, data in zip(namespaces, odom, strict=True):
+            pubs[ns].put(data)
+        spubs = self._scan_pub
+        for ns, data in zip(scan_namespaces, scans, strict=True):
+            spubs[ns].put(data)
+        self.latest_odom.update(zip(namespaces, odom, strict=True))
+        self.latest_scan.update(zip(scan_namespaces, scans, strict=True))
+
+    def close(self) -> None:
+        for ent in self._entities:
+            try:
+                ent.undeclare()
+            except zenoh.ZError:
+                pass
+        self._entities.clear()

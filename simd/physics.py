@@ -1,0 +1,162 @@
+"""The pymunk world: static geometry, robot bodies, and batched state transfer.
+
+Only the simulation thread touches this object (pymunk is not thread-safe). Robot
+velocities are written and poses read for all bodies at once through ``pymunk.batch``,
+so the per-tick cost does not grow with a Python loop over robots.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+import pymunk
+import pymunk.batch
+
+from simd.models import RobotModel
+from simd.worldfile import WorldGeometry
+
+F64 = npt.NDArray[np.float64]
+
+_ROBOT = 1
+_STATIC = 2
+_GET_FIELDS = (
+    pymunk.batch.BodyFields.BODY_ID
+    | pymunk.batch.BodyFields.POSITION
+    | pymunk.batch.BodyFields.ANGLE
+)
+_SET_FIELDS = pymunk.batch.BodyFields.VELOCITY | pymunk.batch.BodyFields.ANGULAR_VELOCITY
+
+
+class Physics:
+    """Rigid-body world stepping robots with velocities chosen by the drive controller."""
+
+    def __init__(self, world: WorldGeometry, substeps: int = 2) -> None:
+        self.space = pymunk.Space()
+        self.space.iterations = 10
+        self.substeps = substeps
+        static = self.space.static_body
+        shapes: list[pymunk.Shape] = []
+        for poly in world.polygons:
+            shapes.append(pymunk.Poly(static, [tuple(p) for p in poly]))
+        for x, y, r in world.circles:
+            shapes.append(pymunk.Circle(static, float(r), (float(x), float(y))))
+        for s in shapes:
+            s.collision_type = _STATIC
+            s.friction = 0.0
+        self.space.add(*shapes)
+        self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
+        self._order_dirty = True
+        self._order_rids: npt.NDArray[np.int64] = np.zeros(0, dtype=np.int64)
+        self._n_iter = 0
+
+    # -- robots -------------------------------------------------------------------------
+
+    def _make_body(self, model: RobotModel) -> tuple[pymunk.Body, list[pymunk.Shape]]:
+        body = pymunk.Body()
+        rects = model.rects()
+        areas = [(r[1] - r[0]) * (r[3] - r[2]) for r in rects]
+        total = sum(areas)
+        shapes: list[pymunk.Shape] = []
+        for (x0, x1, y0, y1), area in zip(rects, areas, strict=True):
+            s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+            s.mass = model.mass * area / total
+            s.friction = 0.0
+            s.collision_type = _ROBOT
+            shapes.append(s)
+        return body, shapes
+
+    def blocker(self, model: RobotModel, x: float, y: float, yaw: float) -> int | None:
+        """What the footprint at this pose would overlap: -1 for static geometry, a robot
+        id for a robot, None if the place is free."""
+        body, shapes = self._make_body(model)
+        body.position = (x, y)
+        body.angle = yaw
+        for s in shapes:
+            s.cache_bb()
+            for hit in self.space.shape_query(s):
+                other = hit.shape
+                if other is None:
+                    continue
+                if other.body is self.space.static_body:
+                    return -1
+                rid = getattr(other.body, "rid", None)
+                if rid is not None:
+                    return int(rid)
+        return None
+
+    def add_robot(self, rid: int, model: RobotModel, x: float, y: float, yaw: float) -> None:
+        body, shapes = self._make_body(model)
+        body.position = (x, y)
+        body.angle = yaw
+        body.rid = rid  # type: ignore[attr-defined]
+        self.space.add(body, *shapes)
+        self._bodies[rid] = body
+        self._order_dirty = True
+
+    def remove_robot(self, rid: int) -> None:
+        body = self._bodies.pop(rid)
+        self.space.remove(body, *body.shapes)
+        self._order_dirty = True
+
+    def place(self, rid: int, x: float, y: float, yaw: float) -> None:
+        """Teleport a robot (reset), stopping it."""
+        body = self._bodies[rid]
+        body.position = (x, y)
+        body.angle = yaw
+        body.velocity = (0.0, 0.0)
+        body.angular_velocity = 0.0
+        self.space.reindex_shapes_for_body(body)
+
+    # -- batched state --------------------------------------------------------------------
+
+    def _refresh_order(self) -> None:
+        buf = pymunk.batch.Buffer()
+        pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.BODY_ID, buf)
+        ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
+        by_id = {b.id: rid for rid, b in self._bodies.items()}
+        self._order_rids = np.array([by_id.get(int(i), -1) for i in ids], dtype=np.int64)
+        self._n_iter = len(ids)
+        self._order_dirty = False
+
+    def step(self, rids: npt.NDArray[np.int64], vx: F64, vy: F64, w: F64, dt: float) -> None:
+        """Set each robot's world velocity (rows aligned with ``rids``) and advance ``dt``."""
+        if self._order_dirty:
+            self._refresh_order()
+        if self._n_iter:
+            # map iteration order -> row in the caller's arrays (-1 for non-robot bodies)
+            row_of = np.full(int(rids.max(initial=-1)) + 2, -1, dtype=np.int64)
+            row_of[rids] = np.arange(len(rids))
+            rows = np.where(self._order_rids >= 0, row_of[self._order_rids], -1)
+            out = np.zeros((self._n_iter, 3), dtype=np.float64)
+            ok = rows >= 0
+            out[ok, 0] = vx[rows[ok]]
+            out[ok, 1] = vy[rows[ok]]
+            out[ok, 2] = w[rows[ok]]
+            buf = pymunk.batch.Buffer()
+            buf.set_float_buf(out.ravel())
+            pymunk.batch.set_space_bodies(self.space, _SET_FIELDS, buf)
+        h = dt / self.substeps
+        for _ in range(self.substeps):
+            self.space.step(h)
+
+    def poses(self, rids: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
+        """Positions and headings of the robots, rows aligned with ``rids``."""
+        n = len(rids)
+        x = np.zeros(n)
+        y = np.zeros(n)
+        a = np.zeros(n)
+        if not n:
+            return x, y, a
+        if self._order_dirty:
+            self._refresh_order()
+        buf = pymunk.batch.Buffer()
+        pymunk.batch.get_space_bodies(self.space, _GET_FIELDS, buf)
+        data = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
+        row_of = np.full(int(rids.max()) + 2, -1, dtype=np.int64)
+        row_of[rids] = np.arange(n)
+        rows = np.where(self._order_rids >= 0, row_of[self._order_rids], -1)
+        ok = rows >= 0
+        x[rows[ok]] = data[ok, 0]
+        y[rows[ok]] = data[ok, 1]
+        a[rows[ok]] = data[ok, 2]
+        return x, y, a
