@@ -1,0 +1,124 @@
+"""Shared fixtures: a real ``simd`` process on a free loopback port, and clients of it.
+
+Every test that needs a daemon starts its own (no shared state between tests, no fixed
+ports) and waits for it to answer, never for a fixed sleep.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from clients import FleetClient
+from protocol import FleetError
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def free_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Daemon:
+    """A running simd process."""
+
+    proc: subprocess.Popen[str]
+    endpoint: str
+    port: int
+    prefix: str = "fleet"
+    log_path: Path | None = None
+    clients: list[FleetClient] = field(default_factory=list)
+
+    def client(self, timeout: float = 3.0) -> FleetClient:
+        c = FleetClient(self.endpoint, prefix=self.prefix, timeout=timeout)
+        self.clients.append(c)
+        return c
+
+    def log(self) -> str:
+        return self.log_path.read_text() if self.log_path and self.log_path.exists() else ""
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, sig: int = signal.SIGTERM, timeout: float = 5.0) -> int:
+        for c in self.clients:
+            c.close()
+        self.clients.clear()
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        return int(self.proc.returncode)
+
+
+def simd_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "simd.cli", *args]
+
+
+def start_daemon(tmp_path: Path, *args: str, prefix: str = "fleet", wait: float = 15.0) -> Daemon:
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    log_path = tmp_path / f"simd-{port}.log"
+    with log_path.open("w") as logf:
+        proc = subprocess.Popen(
+            simd_command("-l", endpoint, "--prefix", prefix, *args),
+            stdout=logf,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=ROOT,
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
+    d = Daemon(proc, endpoint, port, prefix, log_path)
+    deadline = time.monotonic() + wait
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"simd exited with {proc.returncode}:\n{d.log()}")
+        try:
+            with FleetClient(endpoint, prefix=prefix, timeout=1.0) as c:
+                c.clock()
+            return d
+        except FleetError:
+            time.sleep(0.05)
+    d.stop()
+    raise RuntimeError(f"simd did not answer within {wait} s:\n{d.log()}")
+
+
+@pytest.fixture
+def daemon_factory(tmp_path: Path) -> Iterator[Callable[..., Daemon]]:
+    """Start daemons with extra simd arguments; all are stopped at the end of the test."""
+    started: list[Daemon] = []
+
+    def make(*args: str, prefix: str = "fleet") -> Daemon:
+        d = start_daemon(tmp_path, *args, prefix=prefix)
+        started.append(d)
+        return d
+
+    yield make
+    for d in started:
+        d.stop()
+
+
+@pytest.fixture
+def daemon(daemon_factory: Callable[..., Daemon]) -> Daemon:
+    """A daemon on turtlebot3_world, real time, noise on."""
+    return daemon_factory()
+
+
+@pytest.fixture
+def client(daemon: Daemon) -> FleetClient:
+    return daemon.client()
