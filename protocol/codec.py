@@ -63,7 +63,9 @@ def _field_of(message: str) -> str | None:
     marker = "at `$."
     i = message.rfind(marker)
     if i < 0:
-        return None
+        missing = "missing required field `"
+        j = message.find(missing)
+        return message[j + len(missing) :].split("`")[0] if j >= 0 else None
     return message[i + len(marker) :].rstrip("`")
 
 

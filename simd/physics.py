@@ -33,6 +33,13 @@ class Physics:
     def __init__(self, world: WorldGeometry, substeps: int = 2) -> None:
         self.space = pymunk.Space()
         self.space.iterations = 10
+        # pymunk's defaults are tuned for pixels: 0.1 of allowed overlap would let a robot
+        # sink 10 cm into a wall, and through a thin one. Work in metres.
+        self.space.collision_slop = 0.0005
+        # Robots get their wheel velocity each tick, which pymunk integrates before it solves
+        # contacts; correcting half of any overlap per 1/60 s (default: a tenth) keeps a robot
+        # pushing into a wall within ~2 mm of it at 4 substeps (measured: 21 mm with defaults).
+        self.space.collision_bias = pow(0.5, 60)
         self.substeps = substeps
         static = self.space.static_body
         shapes: list[pymunk.Shape] = []
@@ -90,6 +97,13 @@ class Physics:
         body.angle = yaw
         body.rid = rid  # type: ignore[attr-defined]
         self.space.add(body, *shapes)
+        # A diff-drive base turns about the wheel axle midpoint (base_footprint), not about
+        # the chassis' centre of mass, and the velocities we set are those of that point.
+        # Changing the centre of gravity moves the body's origin, so place it afterwards.
+        body.center_of_gravity = (0.0, 0.0)
+        body.position = (x, y)
+        body.angle = yaw
+        self.space.reindex_shapes_for_body(body)
         self._bodies[rid] = body
         self._order_dirty = True
 
