@@ -1,0 +1,224 @@
+"""Every input key gets bad input: each is refused with a structured error (or, for
+cmd_vel, dropped and counted), the world is unchanged and the daemon stays alive."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from typing import Any
+
+import msgspec
+import pytest
+import zenoh
+
+from clients import FleetClient, wait_until
+from tests.conftest import Daemon
+from tests.zraw import get, raw_session
+
+LONG = "x" * 65
+SPAWN_CASES: list[tuple[str, bytes | None, str]] = [
+    # (case, payload, expected error code)
+    ("garbage", b"\x00\xffnot a message", "malformed"),
+    ("truncated json", b'{"name": "a", "x": ', "malformed"),
+    ("json array", b'["a", 1, 2]', "malformed"),
+    ("json string", b'"tb3_0"', "malformed"),
+    ("empty", None, "malformed"),
+    ("empty object", b"{}", "malformed"),
+    ("name wrong type", b'{"name": 7}', "malformed"),
+    ("x wrong type", b'{"name": "a", "x": "far"}', "malformed"),
+    ("x null", b'{"name": "a", "x": null}', "malformed"),
+    ("nested garbage", b'{"name": {"first": "a"}}', "malformed"),
+    ("msgpack positional", msgspec.msgpack.encode(["a", None, "burger", 0.0, 0.0, 0.0]), "malformed"),
+    ("msgpack nan", msgspec.msgpack.encode({"name": "a", "x": math.nan}), "non_finite"),
+    ("msgpack inf", msgspec.msgpack.encode({"name": "a", "y": math.inf}), "non_finite"),
+    ("msgpack -inf yaw", msgspec.msgpack.encode({"name": "a", "yaw": -math.inf}), "non_finite"),
+    ("huge x", b'{"name": "a", "x": 1e308}', "out_of_bounds"),
+    ("huge int x", b'{"name": "a", "x": 100000000000000000000}', "out_of_bounds"),
+    ("outside the world", b'{"name": "a", "x": 10, "y": 0}', "out_of_bounds"),
+    ("inside a pillar", b'{"name": "a", "x": 1.1, "y": 1.1}', "collision"),
+    ("inside the outer wall", b'{"name": "a", "x": 0, "y": 2.7}', "collision"),
+    ("inside a hexagon", b'{"name": "a", "x": 3.0, "y": 0.0}', "collision"),
+    ("on another robot", b'{"name": "a", "x": -1.95, "y": -0.5}', "collision"),
+    ("slash", b'{"name": "a/b"}', "invalid_name"),
+    ("star", b'{"name": "a*"}', "invalid_name"),
+    ("double star", b'{"name": "**"}', "invalid_name"),
+    ("dollar", b'{"name": "$*"}', "invalid_name"),
+    ("question mark", b'{"name": "a?x=1"}', "invalid_name"),
+    ("hash", b'{"name": "a#"}', "invalid_name"),
+    ("space", b'{"name": "tb3 0"}', "invalid_name"),
+    ("newline", b'{"name": "tb3\\n0"}', "invalid_name"),
+    ("unicode", '{"name": "robot_é"}'.encode(), "invalid_name"),
+    ("cjk", '{"name": "机器人"}'.encode(), "invalid_name"),
+    ("empty name", b'{"name": ""}', "invalid_name"),
+    ("leading digit", b'{"name": "0tb3"}', "invalid_name"),
+    ("too long", json.dumps({"name": LONG}).encode(), "invalid_name"),
+    ("dot", b'{"name": "."}', "invalid_name"),
+    ("reserved spawn", b'{"name": "spawn"}', "reserved_name"),
+    ("reserved sim", b'{"name": "sim"}', "reserved_name"),
+    ("reserved namespace", b'{"name": "ok", "namespace": "world"}', "reserved_name"),
+    ("bad namespace", b'{"name": "ok", "namespace": "a/b"}', "invalid_name"),
+    ("duplicate name", b'{"name": "tb3_0", "x": 0.5, "y": -2}', "already_exists"),
+    ("duplicate namespace", b'{"name": "other", "namespace": "tb3_0", "x": 0.5, "y": -2}', "already_exists"),
+    ("name equals a namespace", b'{"name": "ns_of_b", "x": 0.5, "y": -2}', "already_exists"),
+    ("unknown model", b'{"name": "a", "model": "waffle_pi2", "x": 0.5, "y": -2}', "unknown_model"),
+    ("model wrong type", b'{"name": "a", "model": 3}', "malformed"),
+]
+
+
+def decode_reply(raw: bytes) -> dict[str, Any]:
+    """Replies mirror the request's encoding: JSON for JSON, MessagePack otherwise."""
+    out: dict[str, Any] = json.loads(raw) if raw[:1] == b"{" else msgspec.msgpack.decode(raw)
+    return out
+
+
+def world_state(c: FleetClient) -> list[tuple[str, str, str, float, float, float]]:
+    return [(r.name, r.namespace, r.model, r.pose.x, r.pose.y, r.pose.yaw) for r in c.robots()]
+
+
+@pytest.fixture
+def populated(daemon_factory: Any) -> tuple[Daemon, FleetClient]:
+    d = daemon_factory("--lockstep")  # nothing moves between checks: "unchanged" is exact
+    c = d.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.spawn("b", 0.5, -2.0, namespace="ns_of_b")
+    return d, c
+
+
+def test_every_bad_spawn_is_refused_with_a_structured_error(populated: tuple[Daemon, FleetClient]) -> None:
+    d, c = populated
+    before = world_state(c)
+    failures = []
+    with raw_session(d.endpoint) as s:
+        for case, payload, code in SPAWN_CASES:
+            ok, err = get(s, "fleet/spawn", payload)
+            if ok is not None or err is None:
+                failures.append(f"{case}: accepted or unanswered ({ok!r})")
+                continue
+            reply = decode_reply(err)
+            if reply.get("code") != code or not reply.get("message"):
+                failures.append(f"{case}: got {reply}, wanted {code}")
+    assert not failures, "\n".join(failures)
+    assert d.alive()
+    assert world_state(c) == before
+    assert c.alive() == ["ns_of_b", "tb3_0"]
+
+
+def test_errors_come_back_in_the_request_encoding(populated: tuple[Daemon, FleetClient]) -> None:
+    d, _ = populated
+    with raw_session(d.endpoint) as s:
+        _, err_json = get(s, "fleet/spawn", b'{"name": "a b"}')
+        _, err_mp = get(s, "fleet/spawn", msgspec.msgpack.encode({"name": "a b"}))
+    assert err_json is not None and json.loads(err_json)["code"] == "invalid_name"
+    assert err_mp is not None and msgspec.msgpack.decode(err_mp)["code"] == "invalid_name"
+    assert json.loads(err_json)["field"] == "name"
+
+
+@pytest.mark.parametrize(
+    ("key", "payload", "code"),
+    [
+        ("fleet/delete", None, "malformed"),
+        ("fleet/delete", b'{"name": 3}', "malformed"),
+        ("fleet/delete", b'{"name": "nobody"}', "not_found"),
+        ("fleet/delete", b'{"name": "*"}', "not_found"),
+        ("fleet/delete", b"\xc1", "malformed"),
+        ("fleet/sim/step", b'{"ticks": 0}', "invalid_value"),
+        ("fleet/sim/step", b'{"ticks": -5}', "invalid_value"),
+        ("fleet/sim/step", b'{"ticks": 100000000000}', "invalid_value"),
+        ("fleet/sim/step", b'{"ticks": "many"}', "malformed"),
+        ("fleet/sim/step", b'{"ticks": 1.5}', "malformed"),
+        ("fleet/sim/step", msgspec.msgpack.encode({"ticks": 1, "cmd_vel": {"tb3_0": {"linear": {"x": math.nan}}}}), "non_finite"),
+        ("fleet/sim/step", b'{"ticks": 1, "cmd_vel": {"ghost": {"linear": {"x": 0.1}}}}', "not_found"),
+        ("fleet/sim/reset", b'{"seed": -1}', "invalid_value"),
+        ("fleet/sim/reset", b'{"seed": "abc"}', "malformed"),
+        ("fleet/sim/resume", None, "not_allowed"),
+    ],
+)
+def test_bad_control_requests(populated: tuple[Daemon, FleetClient], key: str, payload: bytes | None, code: str) -> None:
+    d, c = populated
+    before = world_state(c)
+    tick = c.clock().tick
+    with raw_session(d.endpoint) as s:
+        ok, err = get(s, key, payload)
+    assert ok is None and err is not None
+    assert decode_reply(err)["code"] == code
+    assert world_state(c) == before
+    assert c.clock().tick == tick
+    assert d.alive()
+
+
+def test_bad_cmd_vel_is_dropped_and_counted(populated: tuple[Daemon, FleetClient]) -> None:
+    d, c = populated
+    before = world_state(c)
+    bad = [
+        b"garbage",
+        b'{"linear": {"x": "fast"}}',
+        b'{"linear": 5}',
+        b"[0.1, 0.2]",
+        msgspec.msgpack.encode({"linear": {"x": math.nan}}),
+        msgspec.msgpack.encode({"angular": {"z": math.inf}}),
+        msgspec.msgpack.encode({"linear": {"x": -math.inf}}),
+        b"\xc1\xc1",
+    ]
+    with raw_session(d.endpoint) as s:
+        for p in bad:
+            s.put("fleet/tb3_0/cmd_vel", p)
+        s.put("fleet/*/cmd_vel", b'{"linear": {"x": 0.2}}')  # a wildcard put reaches us literally
+        s.put("fleet/**/cmd_vel", b'{"linear": {"x": 0.2}}')
+        assert wait_until(lambda: c.clock().dropped_commands >= len(bad) + 1, 3.0)
+        c.step(30)
+    assert world_state(c) == before  # nothing moved
+    assert d.alive()
+
+
+def test_huge_cmd_vel_is_clamped_to_the_model_limit(populated: tuple[Daemon, FleetClient]) -> None:
+    d, c = populated
+    # the left rim needs 0.447 m/s: 14 ramp updates, inside the 15-tick watchdog
+    c.step(14, cmd_vel={"tb3_0": (1e300, -1e300)})
+    r = c.robot("tb3_0")
+    assert r is not None
+    assert r.linear_velocity == pytest.approx(0.22) and r.angular_velocity == pytest.approx(-2.84)
+
+
+def test_cmd_vel_for_unknown_or_invalid_namespaces_is_harmless(populated: tuple[Daemon, FleetClient]) -> None:
+    d, c = populated
+    before = world_state(c)
+    with raw_session(d.endpoint) as s:
+        for key in ("fleet/ghost/cmd_vel", "fleet/spawn/cmd_vel", "fleet/a b/cmd_vel", "fleet/é/cmd_vel"):
+            s.put(key, b'{"linear": {"x": 0.2}}')
+    c.step(10)
+    assert world_state(c) == before
+    assert d.alive()
+
+
+def test_floods_leave_the_daemon_serving(populated: tuple[Daemon, FleetClient]) -> None:
+    d, c = populated
+    before = world_state(c)
+    answered = 0
+    with raw_session(d.endpoint) as s:
+        for i in range(3000):  # cmd_vel flood, good and bad mixed
+            s.put("fleet/tb3_0/cmd_vel", b"junk" if i % 2 else b'{"linear": {"x": 0.0}}')
+        done: list[int] = []
+
+        def on_reply(r: zenoh.Reply) -> None:
+            done.append(1)
+
+        for i in range(500):  # concurrent bad spawn queries
+            s.get("fleet/spawn", zenoh.handlers.Callback(on_reply), payload=b'{"name": "bad name %d"}' % i, timeout=10)
+        assert wait_until(lambda: len(done) >= 500, 15.0)
+        answered = len(done)
+    assert answered == 500
+    assert world_state(c) == before
+    assert c.clock().robots == 2
+    assert d.alive()
+
+
+def test_daemon_keeps_serving_after_a_client_vanishes_mid_request(populated: tuple[Daemon, FleetClient]) -> None:
+    d, c = populated
+    with raw_session(d.endpoint) as s:
+        s.get("fleet/sim/step", zenoh.handlers.Callback(lambda r: None), payload=b'{"ticks": 300}', timeout=5)
+    # the requester is gone; the step still completes and the daemon answers others
+    assert wait_until(lambda: c.clock().tick >= 300, 10.0)
+    assert d.alive()
+    time.sleep(0.1)
+    assert c.robots()
