@@ -62,6 +62,19 @@ def reply_error(req: Request, err: FleetError) -> None:
     req.query.reply_err(encode(err.to_reply(), req.fmt), encoding=media_type(req.fmt))
 
 
+def to_json(topic: str, msgpack_payload: bytes) -> bytes:
+    """A published message as JSON for people; a scan's ranges become a list (null = inf)."""
+    from protocol.messages import LaserScan, Odometry
+
+    if topic == "scan":
+        scan = msgspec.msgpack.decode(msgpack_payload, type=LaserScan)
+        d = msgspec.structs.asdict(scan)
+        d["ranges"] = [None if not math.isfinite(r) else round(r, 4) for r in scan.ranges_array().tolist()]
+        d["intensities"] = scan.intensities_array().tolist()
+        return msgspec.json.encode(d)
+    return msgspec.json.encode(msgspec.msgpack.decode(msgpack_payload, type=Odometry))
+
+
 class Bridge:
     """Declares the daemon's zenoh entities and moves data across the thread boundary."""
 
@@ -96,6 +109,11 @@ class Bridge:
             session.declare_queryable(f"{k.prefix}/*/scan", self._latest_answerer(self.latest_scan, "scan"))
         )
         self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
+        # JSON mirrors for people with zenoh's CLI (whose subscriber cannot read MessagePack).
+        # These wildcard publishers only probe for subscribers: the mirrors cost nothing
+        # until somebody subscribes to a P/<ns>/odom/json or P/<ns>/scan/json key.
+        self._odom_json_probe = session.declare_publisher(f"{k.prefix}/*/odom/json")
+        self._scan_json_probe = session.declare_publisher(f"{k.prefix}/*/scan/json")
 
     # -- inputs (zenoh threads) -------------------------------------------------------------
 
@@ -143,17 +161,13 @@ class Bridge:
         return cmds
 
     def _latest_answerer(self, cache: dict[str, bytes], topic: str) -> Any:
-        from protocol.messages import LaserScan, Odometry
-
-        type_: type[Any] = Odometry if topic == "odom" else LaserScan
-
         def answer(query: zenoh.Query) -> None:
             with query:
                 fmt: Format = "json" if query.parameters.get("format") == "json" else "msgpack"
                 for ns, data in list(cache.items()):
                     key = f"{self.keys.prefix}/{ns}/{topic}"
                     if query.key_expr.intersects(zenoh.KeyExpr(key)):
-                        body = data if fmt == "msgpack" else encode(msgspec.msgpack.decode(data, type=type_), "json")
+                        body = data if fmt == "msgpack" else to_json(topic, data)
                         query.reply(key, body, encoding=media_type(fmt))
 
         return answer
@@ -187,6 +201,16 @@ class Bridge:
             spubs[ns].put(data)
         self.latest_odom.update(zip(namespaces, odom, strict=True))
         self.latest_scan.update(zip(scan_namespaces, scans, strict=True))
+        if self._odom_json_probe.matching_status.matching:
+            self._mirror("odom", namespaces, odom)
+        if scans and self._scan_json_probe.matching_status.matching:
+            self._mirror("scan", scan_namespaces, scans)
+
+    def _mirror(self, topic: str, namespaces: list[str], payloads: list[bytes]) -> None:
+        for ns, data in zip(namespaces, payloads, strict=True):
+            self.session.put(
+                f"{self.keys.prefix}/{ns}/{topic}/json", to_json(topic, data), encoding="application/json"
+            )
 
     def close(self) -> None:
         for ent in self._entities:

@@ -258,3 +258,19 @@ def test_help_lists_the_flags() -> None:
     for flag in ("--world", "--prefix", "--seed", "--rtf", "--no-noise", "--cmd-timeout", "--max-robots",
                  "--lockstep", "--listen", "--connect", "--mode", "--config", "--cfg"):  # fmt: skip
         assert flag in p.stdout
+
+
+def test_json_mirrors_flow_only_while_subscribed(daemon: Daemon) -> None:
+    import json
+
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    with raw_session(daemon.endpoint) as s:
+        odom = Collector(s, "fleet/tb3_0/odom/json")
+        scan = Collector(s, "fleet/tb3_0/scan/json")
+        assert wait_until(lambda: len(odom) >= 5 and len(scan) >= 1, 3.0)
+        o = json.loads(odom.samples[-1][1])
+        assert o["header"]["frame_id"] == "tb3_0/odom"
+        sc = json.loads(scan.samples[-1][1])
+        assert len(sc["ranges"]) == 360
+        assert all(r is None or 0.12 <= r <= 3.5 for r in sc["ranges"])
