@@ -184,13 +184,14 @@ class FleetClient:
         return self._query(self.keys.reset, ResetRequest(seed=seed), Clock)
 
     def step(
-        self, ticks: int = 1, cmd_vel: dict[str, tuple[float, float]] | None = None, timeout: float | None = None
+        self,
+        ticks: int = 1,
+        cmd_vel: dict[str, tuple[float, float]] | None = None,
+        timeout: float | None = None,
     ) -> Clock:
         """Advance ``ticks`` ticks of a paused or lockstep daemon, applying ``cmd_vel``
         ({namespace: (linear, angular)}) first. Returns after the ticks ran."""
-        cmds = {
-            ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()
-        }
+        cmds = {ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()}
         return self._query(self.keys.step, StepRequest(ticks=ticks, cmd_vel=cmds), Clock, timeout)
 
     # -- motion ---------------------------------------------------------------------------
@@ -242,7 +243,9 @@ class FleetClient:
 
     # -- sensors --------------------------------------------------------------------------
 
-    def _subscribe(self, topic: str, namespace: str, type_: type[T], callback: Callable[[str, T], None]) -> Subscription:
+    def _subscribe(
+        self, topic: str, namespace: str, type_: type[T], callback: Callable[[str, T], None]
+    ) -> Subscription:
         dec = msgspec.msgpack.Decoder(type_)
 
         def handler(sample: zenoh.Sample) -> None:

@@ -53,9 +53,7 @@ def decode(payload: bytes, type_: type[T]) -> T:
         field = _field_of(str(e))
         raise FleetError(ErrorCode.MALFORMED, f"invalid {type_.__name__}: {e}", field) from None
     except msgspec.DecodeError as e:
-        raise FleetError(
-            ErrorCode.MALFORMED, f"payload is not valid {fmt} for {type_.__name__}: {e}"
-        ) from None
+        raise FleetError(ErrorCode.MALFORMED, f"payload is not valid {fmt} for {type_.__name__}: {e}") from None
 
 
 def _field_of(message: str) -> str | None:

@@ -44,10 +44,7 @@ def check_name(value: str, field: str = "name") -> str:
         )
     if NAME_PATTERN.fullmatch(value) is None:
         bad = next((c for c in value if not (c.isascii() and (c.isalnum() or c == "_"))), None)
-        if bad is not None:
-            why = f"contains {bad!r}"
-        else:
-            why = "must start with a letter"
+        why = f"contains {bad!r}" if bad is not None else "must start with a letter"
         raise FleetError(
             ErrorCode.INVALID_NAME,
             f"{field} {value!r} {why}: use letters, digits and '_', starting with a letter",
@@ -66,7 +63,5 @@ def check_prefix(prefix: str) -> str:
     """A key prefix is one or more '/'-separated chunks of ``[A-Za-z0-9_-]``."""
     chunks = prefix.split("/")
     if not prefix or any(re.fullmatch(r"[A-Za-z0-9_\-]+", c) is None for c in chunks):
-        raise ValueError(
-            f"prefix {prefix!r} must be '/'-separated chunks of letters, digits, '_' or '-'"
-        )
+        raise ValueError(f"prefix {prefix!r} must be '/'-separated chunks of letters, digits, '_' or '-'")
     return prefix

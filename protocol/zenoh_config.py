@@ -65,9 +65,7 @@ class ZenohOptions:
         return conf
 
 
-def add_zenoh_args(
-    parser: argparse.ArgumentParser, *, server: bool, default_mode: str | None = None
-) -> None:
+def add_zenoh_args(parser: argparse.ArgumentParser, *, server: bool, default_mode: str | None = None) -> None:
     """Add the zenoh flags. A server (simd) listens by default; a client connects."""
     g = parser.add_argument_group("zenoh")
     g.add_argument(
@@ -87,27 +85,39 @@ def add_zenoh_args(
             "use tcp/0.0.0.0:7447 to accept other hosts)",
         )
         g.add_argument(
-            "-e", "--connect", action="append", metavar="ENDPOINT",
+            "-e",
+            "--connect",
+            action="append",
+            metavar="ENDPOINT",
             help="endpoint to connect to, e.g. a zenoh router (repeatable)",
-        )  # fmt: skip
+        )
     else:
         g.add_argument(
-            "-e", "--connect", action="append", metavar="ENDPOINT",
+            "-e",
+            "--connect",
+            action="append",
+            metavar="ENDPOINT",
             help=f"endpoint of the daemon or a router (default: {DEFAULT_ENDPOINT})",
-        )  # fmt: skip
+        )
         g.add_argument(
-            "-l", "--listen", action="append", metavar="ENDPOINT",
+            "-l",
+            "--listen",
+            action="append",
+            metavar="ENDPOINT",
             help="endpoint to listen on (peer mode only)",
-        )  # fmt: skip
+        )
     g.add_argument("-c", "--config", metavar="FILE", help="zenoh JSON5 configuration file")
     g.add_argument(
-        "--cfg", action="append", metavar="KEY:VALUE",
+        "--cfg",
+        action="append",
+        metavar="KEY:VALUE",
         help="set a zenoh config key to a JSON5 value, e.g. --cfg 'transport/shared_memory/enabled:false'",
-    )  # fmt: skip
+    )
     g.add_argument(
-        "--multicast-scouting", action="store_true",
+        "--multicast-scouting",
+        action="store_true",
         help="enable zenoh multicast scouting (off by default)",
-    )  # fmt: skip
+    )
 
 
 def options_from_args(args: argparse.Namespace, *, server: bool) -> ZenohOptions:

@@ -18,21 +18,35 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="simd",
         description="Headless 2D TurtleBot3 fleet simulator served over Zenoh.",
-        epilog="Spawn a robot: zenoh get -s fleet/spawn -v '{\"name\": \"tb3_0\", \"x\": -2.0, \"y\": -0.5}' "
+        epilog='Spawn a robot: zenoh get -s fleet/spawn -v \'{"name": "tb3_0", "x": -2.0, "y": -0.5}\' '
         "(see the README for the whole key space).",
     )
-    p.add_argument("--world", default="turtlebot3_world",
-                   help="world name (turtlebot3_world, turtlebot3_house, empty) or path to a world YAML file")  # fmt: skip
+    p.add_argument(
+        "--world",
+        default="turtlebot3_world",
+        help="world name (turtlebot3_world, turtlebot3_house, empty) or path to a world YAML file",
+    )
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
-    p.add_argument("--rtf", type=float, default=1.0,
-                   help="target real-time factor; 0 runs as fast as possible (default: %(default)s)")  # fmt: skip
+    p.add_argument(
+        "--rtf",
+        type=float,
+        default=1.0,
+        help="target real-time factor; 0 runs as fast as possible (default: %(default)s)",
+    )
     p.add_argument("--no-noise", action="store_true", help="turn the lidar noise off")
-    p.add_argument("--cmd-timeout", type=float, default=0.5,
-                   help="seconds of sim time without cmd_vel before a robot stops; 0 = never (default: %(default)s)")  # fmt: skip
+    p.add_argument(
+        "--cmd-timeout",
+        type=float,
+        default=0.5,
+        help="seconds of sim time without cmd_vel before a robot stops; 0 = never (default: %(default)s)",
+    )
     p.add_argument("--max-robots", type=int, default=5000, help="robot limit (default: %(default)s)")
-    p.add_argument("--lockstep", action="store_true",
-                   help="advance only when a client asks (sim/step), for deterministic tests and learning loops")  # fmt: skip
+    p.add_argument(
+        "--lockstep",
+        action="store_true",
+        help="advance only when a client asks (sim/step), for deterministic tests and learning loops",
+    )
     p.add_argument("--paused", action="store_true", help="start paused")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     add_zenoh_args(p, server=True)
@@ -49,7 +63,9 @@ def main(argv: list[str] | None = None) -> int:
     if hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(line_buffering=True)
     logging.basicConfig(
-        level=args.log_level.upper(), stream=sys.stdout, format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+        level=args.log_level.upper(),
+        stream=sys.stdout,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
     if args.rtf < 0:
         return fail("--rtf must be >= 0")
@@ -79,7 +95,12 @@ def main(argv: list[str] | None = None) -> int:
 
     sim = Simulation(
         world,
-        SimConfig(seed=args.seed, noise=not args.no_noise, cmd_timeout=args.cmd_timeout, max_robots=args.max_robots),
+        SimConfig(
+            seed=args.seed,
+            noise=not args.no_noise,
+            cmd_timeout=args.cmd_timeout,
+            max_robots=args.max_robots,
+        ),
     )
     opts = options_from_args(args, server=True)
     try:
@@ -105,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
 
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
-        x, y, yaw = world.default_spawn
+        x, y, _ = world.default_spawn
         mode = "lockstep" if args.lockstep else ("paused" if args.paused else f"rtf {args.rtf:g}")
         print(
             f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; "
@@ -114,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(
             f"simd: spawn a robot with: fleet-spawn tb3_0 --x {x:g} --y {y:g}   "
-            f"(or zenoh get -s {keys.spawn} -v '{{\"name\": \"tb3_0\", \"x\": {x:g}, \"y\": {y:g}}}')",
+            f'(or zenoh get -s {keys.spawn} -v \'{{"name": "tb3_0", "x": {x:g}, "y": {y:g}}}\')',
             flush=True,
         )
         daemon.run()

@@ -62,9 +62,7 @@ def robot_record(state: RobotState, keys: Keys) -> RobotRecord:
         spawn_pose=Pose2D(x=sx, y=sy, yaw=syaw),
         limits=state.model.limits(),
         footprint=[(float(px), float(py)) for px, py in state.model.outline],
-        topics=Topics(
-            cmd_vel=keys.cmd_vel(ns), odom=keys.odom(ns), scan=keys.scan(ns), alive=keys.alive(ns)
-        ),
+        topics=Topics(cmd_vel=keys.cmd_vel(ns), odom=keys.odom(ns), scan=keys.scan(ns), alive=keys.alive(ns)),
         frames=frames(ns),
     )
 
@@ -106,8 +104,7 @@ def encode_odometry(out: TickOutput) -> list[bytes]:
     xs, ys, yaws = out.x.tolist(), out.y.tolist(), out.yaw.tolist()
     vxs, vys, wzs = out.linear_x.tolist(), out.linear_y.tolist(), out.angular_z.tolist()
     return [
-        enc(odometry(ns, stamp, xs[i], ys[i], yaws[i], vxs[i], vys[i], wzs[i]))
-        for i, ns in enumerate(out.namespaces)
+        enc(odometry(ns, stamp, xs[i], ys[i], yaws[i], vxs[i], vys[i], wzs[i])) for i, ns in enumerate(out.namespaces)
     ]
 
 

@@ -8,14 +8,21 @@ lockstep mode time advances only through ``P/sim/step``.
 from __future__ import annotations
 
 import collections
-import math
 import logging
+import math
 import queue
 import threading
 import time
 
 from protocol.codec import decode
-from protocol.control import Clock, DeleteRequest, RobotList, ResetRequest, SpawnRequest, StepRequest
+from protocol.control import (
+    Clock,
+    DeleteRequest,
+    ResetRequest,
+    RobotList,
+    SpawnRequest,
+    StepRequest,
+)
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
 from protocol.messages import Time
@@ -149,7 +156,14 @@ class Daemon:
         state = self.sim.state(robot)
         # its first odometry now, so a robot is never silent, even while paused
         first = convert.odometry(
-            robot.namespace, Time.from_seconds(self.sim.time), state.x, state.y, state.yaw, 0.0, 0.0, 0.0
+            robot.namespace,
+            Time.from_seconds(self.sim.time),
+            state.x,
+            state.y,
+            state.yaw,
+            0.0,
+            0.0,
+            0.0,
         )
         from protocol.codec import encode
 
@@ -212,7 +226,9 @@ class Daemon:
             )
         if not 1 <= s.ticks <= MAX_STEP_TICKS:
             raise FleetError(
-                ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {s.ticks}", "ticks"
+                ErrorCode.INVALID_VALUE,
+                f"ticks must be in 1..{MAX_STEP_TICKS}, got {s.ticks}",
+                "ticks",
             )
         if s.cmd_vel:
             cmds = {}

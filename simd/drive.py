@@ -17,9 +17,7 @@ F64 = npt.NDArray[np.float64]
 SNAP_TOLERANCE = 0.01
 
 
-def wheel_targets(
-    v: F64, w: F64, max_v: F64, max_w: F64, separation: F64
-) -> tuple[F64, F64]:
+def wheel_targets(v: F64, w: F64, max_v: F64, max_w: F64, separation: F64) -> tuple[F64, F64]:
     """Clamp (v, w) to the limits and turn them into left/right rim speeds."""
     v = np.clip(v, -max_v, max_v)
     w = np.clip(w, -max_w, max_w)

@@ -56,9 +56,7 @@ class RobotModel:
         return float(np.max(np.hypot(self.outline[:, 0], self.outline[:, 1])))
 
 
-def _outline(
-    chassis: Rect, wheel_x: tuple[float, float], wheel_y: tuple[float, float]
-) -> npt.NDArray[np.float64]:
+def _outline(chassis: Rect, wheel_x: tuple[float, float], wheel_y: tuple[float, float]) -> npt.NDArray[np.float64]:
     """The 12-vertex counter-clockwise outline of chassis plus wheels."""
     cx0, cx1, cy0, cy1 = chassis
     wx0, wx1 = wheel_x

@@ -124,7 +124,10 @@ class Bridge:
             try:
                 self.requests.put_nowait(req)
             except queue.Full:
-                reply_error(req, FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry"))
+                reply_error(
+                    req,
+                    FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry"),
+                )
                 query.drop()
 
         return enqueue
@@ -136,10 +139,9 @@ class Bridge:
             return
         payload = sample.payload.to_bytes()
         try:
-            if payload[:1] and payload[0] in b" \t\r\n{":
-                twist = decode(payload, Twist)
-            else:
-                twist = self._twist.decode(payload)
+            # JSON from people and their tools; MessagePack (the fast path) from programs
+            json_like = payload[:1] and payload[0] in b" \t\r\n{"
+            twist = decode(payload, Twist) if json_like else self._twist.decode(payload)
             v, w = float(twist.linear.x), float(twist.angular.z)
         except (FleetError, msgspec.DecodeError, TypeError, ValueError):
             self._drop()
@@ -191,7 +193,13 @@ class Bridge:
         self.latest_odom.pop(ns, None)
         self.latest_scan.pop(ns, None)
 
-    def publish(self, namespaces: list[str], odom: list[bytes], scan_namespaces: list[str], scans: list[bytes]) -> None:
+    def publish(
+        self,
+        namespaces: list[str],
+        odom: list[bytes],
+        scan_namespaces: list[str],
+        scans: list[bytes],
+    ) -> None:
         """Put one tick's messages back to back (bursts amortise zenoh's wake-ups)."""
         pubs = self._odom_pub
         for ns, data in zip(namespaces, odom, strict=True):
@@ -201,15 +209,17 @@ class Bridge:
             spubs[ns].put(data)
         self.latest_odom.update(zip(namespaces, odom, strict=True))
         self.latest_scan.update(zip(scan_namespaces, scans, strict=True))
-        if self._odom_json_probe.matching_status.matching:
+        if self._odom_json_probe.matching_status.matching:  # type: ignore[attr-defined]  # stub says bool
             self._mirror("odom", namespaces, odom)
-        if scans and self._scan_json_probe.matching_status.matching:
+        if scans and self._scan_json_probe.matching_status.matching:  # type: ignore[attr-defined]
             self._mirror("scan", scan_namespaces, scans)
 
     def _mirror(self, topic: str, namespaces: list[str], payloads: list[bytes]) -> None:
         for ns, data in zip(namespaces, payloads, strict=True):
             self.session.put(
-                f"{self.keys.prefix}/{ns}/{topic}/json", to_json(topic, data), encoding="application/json"
+                f"{self.keys.prefix}/{ns}/{topic}/json",
+                to_json(topic, data),
+                encoding="application/json",
             )
 
     def close(self) -> None:

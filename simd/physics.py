@@ -19,11 +19,7 @@ F64 = npt.NDArray[np.float64]
 
 _ROBOT = 1
 _STATIC = 2
-_GET_FIELDS = (
-    pymunk.batch.BodyFields.BODY_ID
-    | pymunk.batch.BodyFields.POSITION
-    | pymunk.batch.BodyFields.ANGLE
-)
+_GET_FIELDS = pymunk.batch.BodyFields.BODY_ID | pymunk.batch.BodyFields.POSITION | pymunk.batch.BodyFields.ANGLE
 _SET_FIELDS = pymunk.batch.BodyFields.VELOCITY | pymunk.batch.BodyFields.ANGULAR_VELOCITY
 
 
@@ -95,7 +91,7 @@ class Physics:
         body, shapes = self._make_body(model)
         body.position = (x, y)
         body.angle = yaw
-        body.rid = rid  # type: ignore[attr-defined]
+        body.rid = rid
         self.space.add(body, *shapes)
         # A diff-drive base turns about the wheel axle midpoint (base_footprint), not about
         # the chassis' centre of mass, and the velocities we set are those of that point.

@@ -198,8 +198,7 @@ class Simulation:
             if other is not None:
                 raise FleetError(
                     ErrorCode.ALREADY_EXISTS,
-                    f"Entity [{key}] already exists (robot {other.name!r}, namespace "
-                    f"{other.namespace!r})",
+                    f"Entity [{key}] already exists (robot {other.name!r}, namespace {other.namespace!r})",
                     fname,
                 )
         x, y, yaw = float(req.x), float(req.y), wrap_angle(float(req.yaw))
@@ -219,9 +218,7 @@ class Simulation:
             if hit < 0:
                 what = "a wall or obstacle"
             else:
-                what = next(
-                    (f"robot {r.name!r}" for r in self._robots if r.rid == hit), "a robot"
-                )
+                what = next((f"robot {r.name!r}" for r in self._robots if r.rid == hit), "a robot")
             raise FleetError(
                 ErrorCode.COLLISION,
                 f"a {model.name} at ({x:g}, {y:g}, yaw {yaw:.3g}) would overlap {what}",
@@ -264,9 +261,7 @@ class Simulation:
         """Remove the robot with this name or namespace; return its last state."""
         robot = self._by_key.get(key)
         if robot is None:
-            raise FleetError(
-                ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name"
-            )
+            raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
         i = self._row(robot)
         last = self._state_at(robot, i)
         self.physics.remove_robot(robot.rid)
@@ -339,12 +334,8 @@ class Simulation:
             stale = (self.tick - self._last_cmd) * dt > cfg.cmd_timeout + 1e-9
             self._target_v[stale] = 0.0
             self._target_w[stale] = 0.0
-        lt, rt = drive.wheel_targets(
-            self._target_v, self._target_w, self._max_v, self._max_w, self._sep
-        )
-        self._wheel_l, self._wheel_r = drive.ramp_wheels(
-            self._wheel_l, self._wheel_r, lt, rt, self._acc, dt
-        )
+        lt, rt = drive.wheel_targets(self._target_v, self._target_w, self._max_v, self._max_w, self._sep)
+        self._wheel_l, self._wheel_r = drive.ramp_wheels(self._wheel_l, self._wheel_r, lt, rt, self._acc, dt)
         v, w = drive.body_twist(self._wheel_l, self._wheel_r, self._sep)
         dx, dy = drive.arc_displacement(v, w, self._yaw, dt)
         self.physics.step(self._rid, dx / dt, dy / dt, w, dt)

@@ -29,7 +29,11 @@ SPAWN_CASES: list[tuple[str, bytes | None, str]] = [
     ("x wrong type", b'{"name": "a", "x": "far"}', "malformed"),
     ("x null", b'{"name": "a", "x": null}', "malformed"),
     ("nested garbage", b'{"name": {"first": "a"}}', "malformed"),
-    ("msgpack positional", msgspec.msgpack.encode(["a", None, "burger", 0.0, 0.0, 0.0]), "malformed"),
+    (
+        "msgpack positional",
+        msgspec.msgpack.encode(["a", None, "burger", 0.0, 0.0, 0.0]),
+        "malformed",
+    ),
     ("msgpack nan", msgspec.msgpack.encode({"name": "a", "x": math.nan}), "non_finite"),
     ("msgpack inf", msgspec.msgpack.encode({"name": "a", "y": math.inf}), "non_finite"),
     ("msgpack -inf yaw", msgspec.msgpack.encode({"name": "a", "yaw": -math.inf}), "non_finite"),
@@ -59,7 +63,11 @@ SPAWN_CASES: list[tuple[str, bytes | None, str]] = [
     ("reserved namespace", b'{"name": "ok", "namespace": "world"}', "reserved_name"),
     ("bad namespace", b'{"name": "ok", "namespace": "a/b"}', "invalid_name"),
     ("duplicate name", b'{"name": "tb3_0", "x": 0.5, "y": -2}', "already_exists"),
-    ("duplicate namespace", b'{"name": "other", "namespace": "tb3_0", "x": 0.5, "y": -2}', "already_exists"),
+    (
+        "duplicate namespace",
+        b'{"name": "other", "namespace": "tb3_0", "x": 0.5, "y": -2}',
+        "already_exists",
+    ),
     ("name equals a namespace", b'{"name": "ns_of_b", "x": 0.5, "y": -2}', "already_exists"),
     ("unknown model", b'{"name": "a", "model": "waffle_pi2", "x": 0.5, "y": -2}', "unknown_model"),
     ("model wrong type", b'{"name": "a", "model": 3}', "malformed"),
@@ -85,7 +93,9 @@ def populated(daemon_factory: Any) -> tuple[Daemon, FleetClient]:
     return d, c
 
 
-def test_every_bad_spawn_is_refused_with_a_structured_error(populated: tuple[Daemon, FleetClient]) -> None:
+def test_every_bad_spawn_is_refused_with_a_structured_error(
+    populated: tuple[Daemon, FleetClient],
+) -> None:
     d, c = populated
     before = world_state(c)
     failures = []
@@ -127,14 +137,24 @@ def test_errors_come_back_in_the_request_encoding(populated: tuple[Daemon, Fleet
         ("fleet/sim/step", b'{"ticks": 100000000000}', "invalid_value"),
         ("fleet/sim/step", b'{"ticks": "many"}', "malformed"),
         ("fleet/sim/step", b'{"ticks": 1.5}', "malformed"),
-        ("fleet/sim/step", msgspec.msgpack.encode({"ticks": 1, "cmd_vel": {"tb3_0": {"linear": {"x": math.nan}}}}), "non_finite"),
-        ("fleet/sim/step", b'{"ticks": 1, "cmd_vel": {"ghost": {"linear": {"x": 0.1}}}}', "not_found"),
+        (
+            "fleet/sim/step",
+            msgspec.msgpack.encode({"ticks": 1, "cmd_vel": {"tb3_0": {"linear": {"x": math.nan}}}}),
+            "non_finite",
+        ),
+        (
+            "fleet/sim/step",
+            b'{"ticks": 1, "cmd_vel": {"ghost": {"linear": {"x": 0.1}}}}',
+            "not_found",
+        ),
         ("fleet/sim/reset", b'{"seed": -1}', "invalid_value"),
         ("fleet/sim/reset", b'{"seed": "abc"}', "malformed"),
         ("fleet/sim/resume", None, "not_allowed"),
     ],
 )
-def test_bad_control_requests(populated: tuple[Daemon, FleetClient], key: str, payload: bytes | None, code: str) -> None:
+def test_bad_control_requests(
+    populated: tuple[Daemon, FleetClient], key: str, payload: bytes | None, code: str
+) -> None:
     d, c = populated
     before = world_state(c)
     tick = c.clock().tick
@@ -172,7 +192,7 @@ def test_bad_cmd_vel_is_dropped_and_counted(populated: tuple[Daemon, FleetClient
 
 
 def test_huge_cmd_vel_is_clamped_to_the_model_limit(populated: tuple[Daemon, FleetClient]) -> None:
-    d, c = populated
+    _, c = populated
     # the left rim needs 0.447 m/s: 14 ramp updates, inside the 15-tick watchdog
     c.step(14, cmd_vel={"tb3_0": (1e300, -1e300)})
     r = c.robot("tb3_0")
@@ -180,11 +200,18 @@ def test_huge_cmd_vel_is_clamped_to_the_model_limit(populated: tuple[Daemon, Fle
     assert r.linear_velocity == pytest.approx(0.22) and r.angular_velocity == pytest.approx(-2.84)
 
 
-def test_cmd_vel_for_unknown_or_invalid_namespaces_is_harmless(populated: tuple[Daemon, FleetClient]) -> None:
+def test_cmd_vel_for_unknown_or_invalid_namespaces_is_harmless(
+    populated: tuple[Daemon, FleetClient],
+) -> None:
     d, c = populated
     before = world_state(c)
     with raw_session(d.endpoint) as s:
-        for key in ("fleet/ghost/cmd_vel", "fleet/spawn/cmd_vel", "fleet/a b/cmd_vel", "fleet/é/cmd_vel"):
+        for key in (
+            "fleet/ghost/cmd_vel",
+            "fleet/spawn/cmd_vel",
+            "fleet/a b/cmd_vel",
+            "fleet/é/cmd_vel",
+        ):
             s.put(key, b'{"linear": {"x": 0.2}}')
     c.step(10)
     assert world_state(c) == before
@@ -204,7 +231,12 @@ def test_floods_leave_the_daemon_serving(populated: tuple[Daemon, FleetClient]) 
             done.append(1)
 
         for i in range(500):  # concurrent bad spawn queries
-            s.get("fleet/spawn", zenoh.handlers.Callback(on_reply), payload=b'{"name": "bad name %d"}' % i, timeout=10)
+            s.get(
+                "fleet/spawn",
+                zenoh.handlers.Callback(on_reply),
+                payload=b'{"name": "bad name %d"}' % i,
+                timeout=10,
+            )
         assert wait_until(lambda: len(done) >= 500, 15.0)
         answered = len(done)
     assert answered == 500
@@ -213,10 +245,17 @@ def test_floods_leave_the_daemon_serving(populated: tuple[Daemon, FleetClient]) 
     assert d.alive()
 
 
-def test_daemon_keeps_serving_after_a_client_vanishes_mid_request(populated: tuple[Daemon, FleetClient]) -> None:
+def test_daemon_keeps_serving_after_a_client_vanishes_mid_request(
+    populated: tuple[Daemon, FleetClient],
+) -> None:
     d, c = populated
     with raw_session(d.endpoint) as s:
-        s.get("fleet/sim/step", zenoh.handlers.Callback(lambda r: None), payload=b'{"ticks": 300}', timeout=5)
+        s.get(
+            "fleet/sim/step",
+            zenoh.handlers.Callback(lambda r: None),
+            payload=b'{"ticks": 300}',
+            timeout=5,
+        )
     # the requester is gone; the step still completes and the daemon answers others
     assert wait_until(lambda: c.clock().tick >= 300, 10.0)
     assert d.alive()

@@ -173,7 +173,9 @@ def test_step_refused_while_running(daemon: Daemon) -> None:
     assert e.value.code is ErrorCode.NOT_ALLOWED
 
 
-def test_lockstep_runs_only_on_request_and_is_deterministic(daemon_factory: Callable[..., Daemon]) -> None:
+def test_lockstep_runs_only_on_request_and_is_deterministic(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
     runs = []
     for _ in range(2):
         d = daemon_factory("--lockstep", "--seed", "5")
@@ -187,11 +189,11 @@ def test_lockstep_runs_only_on_request_and_is_deterministic(daemon_factory: Call
             c.resume()
         assert e.value.code is ErrorCode.NOT_ALLOWED
         scans: list[bytes] = []
-        c.on_scan("r", lambda ns, m: scans.append(m.ranges))
+        c.on_scan("r", lambda ns, m, out=scans: out.append(m.ranges))  # type: ignore[misc]
         for k in range(10):
             c.step(6, cmd_vel={"r": (0.2, 0.5 * math.sin(k)), "q": (0.1, -0.3)})
         assert c.clock().tick == 60
-        assert wait_until(lambda: len(scans) == 10, 2.0)
+        assert wait_until(lambda out=scans: len(out) == 10, 2.0)  # type: ignore[misc]
         runs.append(([(r.pose.x, r.pose.y, r.pose.yaw) for r in c.robots()], list(scans)))
         d.stop()
     assert runs[0] == runs[1]
@@ -213,7 +215,10 @@ def test_prefix_separates_two_simulations(daemon_factory: Callable[..., Daemon])
     c = d.client()
     rec = c.spawn("tb3_0", -2.0, -0.5)
     assert rec.topics is not None and rec.topics.odom == "sim_b/tb3_0/odom"
-    with FleetClient(d.endpoint, prefix="fleet", timeout=1.0) as other, pytest.raises(FleetError) as e:
+    with (
+        FleetClient(d.endpoint, prefix="fleet", timeout=1.0) as other,
+        pytest.raises(FleetError) as e,
+    ):
         other.robots()
     assert e.value.code is ErrorCode.UNAVAILABLE
 
@@ -242,7 +247,10 @@ def test_port_in_use_is_one_line_and_exit_2(daemon: Daemon) -> None:
 
 def test_bad_world_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
     bad = tmp_path / "bad.yaml"
-    bad.write_text("name: bad\nbounds: {x_min: 0, x_max: 1, y_min: 0, y_max: 1}\nobstacles:\n  - {type: circle, x: 0, y: 0, radius: -1}\n")
+    bad.write_text(
+        "name: bad\nbounds: {x_min: 0, x_max: 1, y_min: 0, y_max: 1}\n"
+        "obstacles:\n  - {type: circle, x: 0, y: 0, radius: -1}\n"
+    )
     for world, fragment in ((str(bad), "radius"), ("turtlebot3_wrld", "turtlebot3_world")):
         p = subprocess.run(
             simd_command("--world", world, "-l", f"tcp/127.0.0.1:{free_port()}"),
@@ -254,7 +262,13 @@ def test_bad_world_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
 
 
 def test_help_lists_the_flags() -> None:
-    p = subprocess.run([sys.executable, "-m", "simd.cli", "--help"], capture_output=True, text=True, timeout=20, cwd=ROOT)
+    p = subprocess.run(
+        [sys.executable, "-m", "simd.cli", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=20,
+        cwd=ROOT,
+    )
     for flag in ("--world", "--prefix", "--seed", "--rtf", "--no-noise", "--cmd-timeout", "--max-robots",
                  "--lockstep", "--listen", "--connect", "--mode", "--config", "--cfg"):  # fmt: skip
         assert flag in p.stdout

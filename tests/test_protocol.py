@@ -74,7 +74,14 @@ def test_keys() -> None:
 def test_spawn_request_decodes_json_and_msgpack() -> None:
     js = b'{"name": "tb3_0", "x": -2, "y": -0.5}'
     req = decode(js, SpawnRequest)
-    assert (req.name, req.x, req.y, req.yaw, req.model, req.namespace) == ("tb3_0", -2.0, -0.5, 0.0, "burger", None)
+    assert (req.name, req.x, req.y, req.yaw, req.model, req.namespace) == (
+        "tb3_0",
+        -2.0,
+        -0.5,
+        0.0,
+        "burger",
+        None,
+    )
     assert decode(encode(req), SpawnRequest) == req
     # leading whitespace and a trailing newline (zenoh-cli keeps it) are fine
     assert decode(b"  \n" + js + b"\n", SpawnRequest) == req

@@ -28,7 +28,9 @@ def raw_session(endpoint: str) -> Iterator[zenoh.Session]:
         s.close()
 
 
-def get(session: zenoh.Session, selector: str, payload: bytes | None = None, timeout: float = 3.0) -> tuple[bytes | None, bytes | None]:
+def get(
+    session: zenoh.Session, selector: str, payload: bytes | None = None, timeout: float = 3.0
+) -> tuple[bytes | None, bytes | None]:
     """(ok payload, error payload) of the first reply; (None, None) if nobody answered."""
     for r in session.get(selector, payload=payload, timeout=timeout):
         if r.ok is not None:
