@@ -97,17 +97,6 @@ def odometry(ns: str, stamp: Time, x: float, y: float, yaw: float, vx: float, vy
     )
 
 
-def encode_odometry(out: TickOutput) -> list[bytes]:
-    """One MessagePack Odometry per robot, in ``out.namespaces`` order."""
-    stamp = Time.from_seconds(out.time)
-    enc = _encoder.encode
-    xs, ys, yaws = out.x.tolist(), out.y.tolist(), out.yaw.tolist()
-    vxs, vys, wzs = out.linear_x.tolist(), out.linear_y.tolist(), out.angular_z.tolist()
-    return [
-        enc(odometry(ns, stamp, xs[i], ys[i], yaws[i], vxs[i], vys[i], wzs[i])) for i, ns in enumerate(out.namespaces)
-    ]
-
-
 def encode_scans(out: TickOutput, spec: LidarSpec) -> list[bytes]:
     """One MessagePack LaserScan per scan in ``out.scan_namespaces`` order."""
     stamp = Time.from_seconds(out.time)

@@ -28,6 +28,7 @@ from protocol.keys import Keys
 from protocol.messages import Time
 from simd import convert
 from simd.net import Bridge, Request, reply_error, reply_ok
+from simd.odom_codec import OdometryEncoder
 from simd.sim import Simulation, TickOutput
 
 log = logging.getLogger(__name__)
@@ -60,6 +61,7 @@ class Daemon:
         self.stop_event = threading.Event()
         self._rtf_window: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
         self._world_info = convert.world_info(sim.world)
+        self._odom = OdometryEncoder()
 
     # -- status ---------------------------------------------------------------------------
 
@@ -120,7 +122,9 @@ class Daemon:
         sim = self.sim
         sim.command_many(self.bridge.take_commands())
         out = sim.step()
-        odom = convert.encode_odometry(out)
+        odom = self._odom.encode(
+            out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
+        )
         scans = convert.encode_scans(out, sim.config.lidar)
         self.bridge.publish(out.namespaces, odom, out.scan_namespaces, scans)
         self._rtf_window.append((time.monotonic(), out.time))
@@ -177,6 +181,7 @@ class Daemon:
         d = decode(req.payload, DeleteRequest)
         last = self.sim.delete(d.name)
         self.bridge.remove_robot(last.namespace)
+        self._odom.forget(last.namespace)
         log.info("deleted %s", last.name)
         return convert.robot_record(last, self.keys)
 
