@@ -106,6 +106,7 @@ class Simulation:
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
         self._robots: list[Robot] = []
         self._by_key: dict[str, Robot] = {}  # names and namespaces share one key space
+        self._row_of: dict[str, int] = {}  # namespace -> row in the state arrays
         self._next_rid = 0
         self._phase_load = [0] * self.config.scan_every
         n = 0
@@ -147,7 +148,7 @@ class Simulation:
         return self._by_key.get(key)
 
     def _row(self, robot: Robot) -> int:
-        return int(np.flatnonzero(self._rid == robot.rid)[0])
+        return self._row_of[robot.namespace]
 
     def state(self, robot: Robot) -> RobotState:
         i = self._row(robot)
@@ -234,6 +235,7 @@ class Simulation:
         robot = Robot(self._next_rid, name, namespace, model, (x, y, yaw), phase)
         self._next_rid += 1
         self.physics.add_robot(robot.rid, model, x, y, yaw)
+        self._row_of[namespace] = len(self._robots)
         self._robots.append(robot)
         self._by_key[name] = robot
         self._by_key[namespace] = robot
@@ -266,6 +268,7 @@ class Simulation:
         last = self._state_at(robot, i)
         self.physics.remove_robot(robot.rid)
         del self._robots[i]
+        self._row_of = {r.namespace: k for k, r in enumerate(self._robots)}
         del self._by_key[robot.name]
         self._by_key.pop(robot.namespace, None)
         self._phase_load[robot.scan_phase] -= 1
@@ -290,7 +293,7 @@ class Simulation:
         """Apply the latest command per namespace; returns how many matched a robot."""
         if not commands:
             return 0
-        row_of = {r.namespace: i for i, r in enumerate(self._robots)}
+        row_of = self._row_of
         rows: list[int] = []
         vs: list[float] = []
         ws: list[float] = []
