@@ -402,12 +402,18 @@ class Simulation:
         return self._sensor_model(raw)
 
     def _sensor_model(self, raw: F32) -> F32:
-        """Gazebo RaySensor masking and noise: >= max is +inf, else noise then clamp."""
+        """Gazebo RaySensor masking and noise: >= max is +inf, else noise then clamp.
+
+        Noise is drawn only for the beams that hit something, in row-major order, so the
+        same seed and the same hits give the same scans.
+        """
         spec = self.config.lidar
         out = raw.astype(np.float32, copy=True)
-        hit = np.isfinite(out) & (out < spec.range_max)
+        hit = out < spec.range_max  # inf and NaN compare false
         out[~hit] = np.inf
         if self.config.noise:
-            noise = self.rng.normal(0.0, self.config.noise_stddev, size=out.shape)
-            out[hit] = np.clip(out[hit] + noise[hit].astype(np.float32), spec.range_min, spec.range_max)
+            vals = out[hit]
+            vals += self.rng.standard_normal(vals.size, dtype=np.float32) * np.float32(self.config.noise_stddev)
+            np.clip(vals, spec.range_min, spec.range_max, out=vals)
+            out[hit] = vals
         return out
