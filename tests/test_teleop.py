@@ -1,0 +1,355 @@
+"""Keyboard teleop: the pure logic, the real Application on a pipe, and a real terminal (tmux)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+import zenoh
+from prompt_toolkit.input import create_pipe_input
+from prompt_toolkit.output import DummyOutput
+
+from clients import FleetClient, wait_until
+from clients import teleop as teleop_mod
+from clients.teleop import (
+    ANG_RAMP,
+    LIN_RAMP,
+    Teleop,
+    TeleopState,
+    describe_bearing,
+    nearest_obstacle,
+)
+from protocol import LaserScan, Twist
+from protocol.zenoh_config import ZenohOptions
+from tests.conftest import ROOT, Daemon, free_port, simd_command
+
+BURGER = (0.22, 2.84)
+WAFFLE = (0.26, 1.82)
+
+# --- (a) the pure logic -------------------------------------------------------------------------
+
+
+def press(state: TeleopState, keys: str | list[str]) -> None:
+    for k in keys:
+        state.press(k)
+
+
+def test_keys_change_targets_by_teleop_keyboard_steps() -> None:
+    s = TeleopState(*BURGER)
+    press(s, "www")
+    assert (s.target_linear, s.target_angular) == (0.03, 0.0)
+    press(s, "x")
+    assert s.target_linear == 0.02
+    press(s, "aa")
+    assert s.target_angular == 0.2  # a turns left (counter-clockwise): positive
+    press(s, "ddd")
+    assert s.target_angular == -0.1
+    press(s, ["up", "up", "left", "down", "right", "right"])
+    assert (s.target_linear, s.target_angular) == (0.03, -0.2)
+    assert not s.press("k") and not s.press("q")  # ignored, nothing changes
+    assert (s.target_linear, s.target_angular) == (0.03, -0.2)
+    assert (s.linear, s.angular) == (0.0, 0.0)  # keys move targets only; the loop ramps
+
+
+@pytest.mark.parametrize(("limits", "w_presses", "a_presses"), [(BURGER, 22, 29), (WAFFLE, 26, 19)])
+def test_targets_clamp_to_the_models_limits(limits: tuple[float, float], w_presses: int, a_presses: int) -> None:
+    max_v, max_w = limits
+    s = TeleopState(max_v, max_w)
+    press(s, "w" * (w_presses - 1))
+    assert s.target_linear < max_v
+    press(s, "w")
+    assert s.target_linear == max_v  # exactly, no 0.22000000000000006
+    press(s, "w" * 10)
+    assert s.target_linear == max_v
+    press(s, "x" * 100)
+    assert s.target_linear == -max_v
+    press(s, "a" * (a_presses - 1))
+    assert s.target_angular < max_w
+    press(s, "a" * 30)
+    assert s.target_angular == max_w
+    press(s, "d" * 100)
+    assert s.target_angular == -max_w
+    s.set_limits(0.1, 1.0)  # a robot that came back as another model
+    assert (s.target_linear, s.target_angular) == (-0.1, -1.0)
+
+
+def test_output_ramps_by_half_a_step_per_loop() -> None:
+    s = TeleopState(*BURGER)
+    press(s, "wwwww" + "aaa")  # targets 0.05 m/s, 0.3 rad/s
+    outputs = [s.tick() for _ in range(12)]
+    assert outputs[0] == (LIN_RAMP, ANG_RAMP) == (0.005, 0.05)
+    assert outputs[1] == (0.01, 0.1)
+    assert outputs[5] == (0.03, 0.3)  # angular reached its target after 6 loops
+    assert outputs[9] == outputs[11] == (0.05, 0.3)  # linear after 10, then holds
+    press(s, "x" * 10)  # target -0.05: back down through zero, 0.005 per loop
+    downs = [s.tick()[0] for _ in range(20)]
+    assert downs[0] == 0.045 and downs[9] == 0.0 and downs[19] == -0.05
+    assert all(abs(b - a) <= LIN_RAMP + 1e-12 for a, b in zip([0.05, *downs], downs, strict=False))
+
+
+@pytest.mark.parametrize("key", ["s", " ", "space"])
+def test_stop_zeroes_target_and_output_at_once(key: str) -> None:
+    s = TeleopState(*BURGER)
+    press(s, "w" * 20 + "a" * 10)
+    for _ in range(30):
+        s.tick()
+    assert s.linear > 0.1 and s.angular > 0.9
+    assert s.press(key)
+    assert (s.target_linear, s.target_angular, s.linear, s.angular) == (0, 0, 0, 0)
+    assert s.tick() == (0.0, 0.0)
+
+
+def scan_with(hits: dict[int, float], range_min: float = 0.12) -> LaserScan:
+    ranges = np.full(360, np.inf, dtype="<f4")
+    for i, r in hits.items():
+        ranges[i] = r
+    return LaserScan(
+        angle_min=0.0,
+        angle_max=6.28,
+        angle_increment=6.28 / 359,
+        range_min=range_min,
+        range_max=3.5,
+        ranges=ranges.tobytes(),
+    )
+
+
+def test_nearest_obstacle_bearing_is_relative_to_the_robot() -> None:
+    assert nearest_obstacle(scan_with({})) is None
+    d, b = nearest_obstacle(scan_with({0: 1.0, 90: 0.5, 200: 2.0})) or (0, 0)
+    assert d == 0.5 and math.isclose(b, 90 * 6.28 / 359)  # left
+    d, b = nearest_obstacle(scan_with({270: 0.4, 10: 0.9})) or (0, 0)
+    assert d == pytest.approx(0.4) and b == pytest.approx(270 * 6.28 / 359 - 2 * math.pi)  # right
+    assert nearest_obstacle(scan_with({5: 0.05}, range_min=0.12)) is None  # below range_min
+    assert describe_bearing(0.05) == "+3° (ahead)"
+    assert describe_bearing(math.radians(-45)) == "-45° (right)"
+    assert describe_bearing(math.radians(179)) == "+179° (behind)"
+
+
+# --- (b) the real Application on a pipe, against a real daemon ----------------------------------
+
+
+class Recorder:
+    """Every cmd_vel seen on a separate zenoh subscriber, with its arrival time."""
+
+    def __init__(self, client: FleetClient, namespace: str) -> None:
+        self.msgs: list[tuple[float, float, float]] = []
+        self._lock = threading.Lock()
+        dec = msgspec.msgpack.Decoder(Twist)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            t = dec.decode(sample.payload.to_bytes())
+            with self._lock:
+                self.msgs.append((time.monotonic(), t.linear.x, t.angular.z))
+
+        key = client.keys.cmd_vel(namespace)
+        self.sub = client.session.declare_subscriber(key, on_sample)
+
+    def snapshot(self) -> list[tuple[float, float, float]]:
+        with self._lock:
+            return list(self.msgs)
+
+    def last(self) -> tuple[float, float] | None:
+        msgs = self.snapshot()
+        return (msgs[-1][1], msgs[-1][2]) if msgs else None
+
+    def wait_for(self, pred: Callable[[tuple[float, float]], bool], timeout: float = 3.0) -> bool:
+        return wait_until(lambda: (m := self.last()) is not None and pred(m), timeout)
+
+
+@contextmanager
+def running_teleop(daemon: Daemon, key: str) -> Iterator[tuple[Teleop, Callable[[str], None], threading.Thread]]:
+    """A Teleop on a pipe input with a DummyOutput, its run() on a thread."""
+    tele = Teleop.open(key, ZenohOptions(mode="client", connect=[daemon.endpoint]), timeout=3.0)
+    tele.client.timeout = 1.0
+    result: list[int] = []
+    with create_pipe_input() as pipe:
+        thread = threading.Thread(target=lambda: result.append(tele.run(input=pipe, output=DummyOutput())))
+        thread.start()
+        try:
+            yield tele, pipe.send_text, thread
+        finally:
+            if thread.is_alive():
+                pipe.send_text("q")
+            thread.join(5)
+    assert not thread.is_alive(), "teleop did not exit"
+    assert result == [0]
+
+
+def test_keys_drive_the_robot_through_the_application(daemon_factory: Callable[..., Daemon]) -> None:
+    d = daemon_factory("--world", "empty")
+    c = d.client()
+    c.spawn("burger_1", 0.0, 0.0, namespace="TB3_1")
+    rec = Recorder(c, "TB3_1")
+    with running_teleop(d, "burger_1") as (tele, send, thread):  # found by name
+        assert tele.namespace == "TB3_1"
+        assert rec.wait_for(lambda m: m == (0.0, 0.0))  # publishing before any key
+        send("wwwww")
+        assert rec.wait_for(lambda m: m[0] == 0.05)
+        ramp = [v for _, v, _ in rec.snapshot()]
+        assert all(0 <= b - a <= LIN_RAMP + 1e-9 for a, b in itertools.pairwise(ramp))
+        send("\x1b[A")  # arrow up = w
+        assert wait_until(lambda: tele.state.target_linear == 0.06, 2.0)
+        send("a")
+        assert rec.wait_for(lambda m: m == (0.06, 0.1))
+
+        # 10 Hz, keys or not: the daemon's 0.5 s watchdog never stops a driven robot
+        t0 = time.monotonic()
+        time.sleep(1.0)
+        n = sum(1 for t, _, _ in rec.snapshot() if t > t0)
+        assert 8 <= n <= 12, n
+        odom = c.wait_odom("TB3_1")
+        assert odom.twist.twist.linear.x == pytest.approx(0.06, abs=0.005)
+
+        send(" ")  # force stop: a zero command at once, no ramp
+        t_stop = time.monotonic()
+        assert rec.wait_for(lambda m: m == (0.0, 0.0), 1.0)
+        first_zero = next(t for t, v, w in rec.snapshot() if t > t_stop and (v, w) == (0.0, 0.0))
+        assert first_zero - t_stop < 0.1
+        assert (tele.state.target_linear, tele.state.target_angular) == (0.0, 0.0)
+
+        send("www")
+        assert rec.wait_for(lambda m: m[0] > 0)
+        n_before_quit = len(rec.snapshot())
+        send("q")
+        thread.join(5)
+        assert not thread.is_alive()
+    assert len(rec.snapshot()) > n_before_quit
+    assert rec.last() == (0.0, 0.0)  # the zero command on quit
+
+
+def test_escape_and_ctrl_c_quit(daemon_factory: Callable[..., Daemon]) -> None:
+    d = daemon_factory("--world", "empty")
+    d.client().spawn("tb3_0")
+    for key in ("\x1b", "\x03"):
+        with running_teleop(d, "tb3_0") as (_, send, thread):
+            send("w")
+            send(key)
+            thread.join(3)
+            assert not thread.is_alive(), repr(key)
+
+
+def test_robot_gone_and_daemon_restart_on_the_same_port(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    d = daemon_factory("--world", "empty")
+    d.client().spawn("tb3_0")
+    with running_teleop(d, "tb3_0") as (tele, send, _):
+        send("ww")
+        assert wait_until(lambda: tele.state.linear == 0.02, 3.0)
+        d.client().delete("tb3_0")
+        assert wait_until(lambda: tele.status()[1].startswith("robot gone"), 3.0)
+        assert wait_until(lambda: tele.state.target_linear == 0.0, 1.0)  # nothing to drive: stopped
+        send("w")  # ignored while the robot is away
+        time.sleep(0.2)
+        assert tele.state.target_linear == 0.0
+
+        d.stop()
+        assert wait_until(lambda: tele.status()[1].startswith("no daemon"), 3.0)
+        assert d.endpoint in tele.status()[1]
+
+        log = (tmp_path / "simd-restarted.log").open("w")
+        proc = subprocess.Popen(
+            simd_command("-l", d.endpoint, "--world", "empty"),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+        )
+        try:
+            # the zenoh client reconnects by itself; the robot is not there yet
+            assert wait_until(lambda: tele.status()[1].startswith("robot gone"), 10.0), tele.status()
+            with FleetClient(d.endpoint, timeout=3.0) as c2:
+                c2.spawn("tb3_0", model="waffle")
+                assert wait_until(lambda: tele.status() == ("good", "robot alive"), 3.0)
+                assert wait_until(lambda: tele.state.max_linear == 0.26, 3.0)  # the new record
+                send("ww")
+                assert wait_until(lambda: c2.wait_odom("tb3_0").twist.twist.linear.x > 0.015, 3.0)
+                send("q")
+        finally:
+            proc.terminate()
+            proc.wait(5)
+            log.close()
+
+
+def test_unknown_robot_and_no_daemon_at_start(daemon: Daemon, capsys: pytest.CaptureFixture[str]) -> None:
+    daemon.client().spawn("burger_1", -2.0, -0.5, namespace="TB3_1")
+    assert teleop_mod.main(["TB3_9", "-e", daemon.endpoint]) == 1
+    err = capsys.readouterr().err
+    assert "no robot with namespace or name 'TB3_9'" in err and "live robots: TB3_1 (burger_1)" in err
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    start = time.monotonic()
+    assert teleop_mod.main(["TB3_1", "-e", endpoint, "--timeout", "0.5"]) == 3
+    assert time.monotonic() - start < 2.5
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line == f"fleet-teleop: no fleetsim daemon answered at {endpoint} within 0.5 s (start one with: simd)"
+
+
+# --- (c) a real terminal -------------------------------------------------------------------------
+
+TMUX = shutil.which("tmux") or ("/usr/bin/tmux" if os.path.exists("/usr/bin/tmux") else None)
+
+
+@pytest.mark.skipif(TMUX is None, reason="tmux is not installed")
+def test_teleop_in_a_real_terminal(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    assert TMUX is not None
+    d = daemon_factory("--world", "empty")
+    c = d.client()
+    c.spawn("burger_1", 0.0, 0.0, namespace="TB3_1")
+    rec = Recorder(c, "TB3_1")
+    x0 = c.wait_odom("TB3_1").pose.pose.position.x
+
+    script = Path(sys.executable).parent / "fleet-teleop"
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "clients.teleop"]
+    exit_file = tmp_path / "exit"
+    shell = f"{shlex.join([*cmd, 'TB3_1', '-e', d.endpoint])}; echo $? > {shlex.quote(str(exit_file))}"
+    socket_name = f"fleetsim-test-{uuid.uuid4().hex[:8]}"
+    tmux = [TMUX, "-L", socket_name]
+    socket_path = Path(os.environ.get("TMUX_TMPDIR", "/tmp"), f"tmux-{os.getuid()}", socket_name)
+
+    def pane() -> str:
+        return subprocess.run([*tmux, "capture-pane", "-p", "-t", "tele"], capture_output=True, text=True).stdout
+
+    def keys(*k: str) -> None:
+        subprocess.run([*tmux, "send-keys", "-t", "tele", *k], check=True)
+
+    subprocess.run(
+        [*tmux, "-f", "/dev/null", "new-session", "-d", "-s", "tele", "-x", "100", "-y", "14", "-c", str(ROOT), shell],
+        check=True,
+        env={**os.environ, "TERM": "xterm-256color"},
+    )
+    try:
+        assert wait_until(lambda: "[robot alive]" in pane(), 10.0), pane()
+        for _ in range(5):
+            keys("w")
+        assert wait_until(lambda: "target    +0.050 m/s" in pane(), 3.0), pane()
+        assert wait_until(lambda: "actual    +0.050 m/s" in pane(), 3.0), pane()
+        assert wait_until(lambda: c.wait_odom("TB3_1").pose.pose.position.x > x0 + 0.02, 3.0)
+        screen = pane()
+        assert "fleet-teleop burger_1 (burger) -> fleet/TB3_1/cmd_vel" in screen
+        assert "pose      x +0.0" in screen and "nearest" in screen
+
+        keys("Space")
+        assert wait_until(lambda: "target    +0.000 m/s" in pane(), 3.0), pane()
+        assert wait_until(lambda: abs(c.wait_odom("TB3_1").twist.twist.linear.x) < 1e-3, 3.0)
+
+        keys("w", "w")
+        assert rec.wait_for(lambda m: m[0] > 0)
+        keys("q")
+        assert wait_until(exit_file.exists, 5.0), pane()
+        assert exit_file.read_text().strip() == "0"
+        assert rec.last() == (0.0, 0.0)
+    finally:
+        subprocess.run([*tmux, "kill-server"], capture_output=True)
+        socket_path.unlink(missing_ok=True)  # tmux leaves it behind when the session ended by itself
