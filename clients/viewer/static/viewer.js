@@ -1,0 +1,668 @@
+// fleet-view page: draws the frames the server pushes over /ws on a 2D canvas.
+// No framework, no network beyond this server. Frame format: clients/viewer/state.py.
+"use strict";
+
+(() => {
+  const canvas = document.getElementById("view");
+  const ctx = canvas.getContext("2d", { alpha: false });
+  const $ = (id) => document.getElementById(id);
+
+  const COLORS = {
+    bg: "#0b1016", floor: "#121b24", grid: "#1e2a36", bounds: "#344658",
+    obstacle: "#3a4a5e", obstacleEdge: "#788ea8", robotEdge: "#080a0e",
+    heading: "#fafafa", text: "#e2e8f0", muted: "#8c9aaa", select: "#ffffff",
+  };
+  const ROBOTS_PAD = 1.5; // m around the robots when the world has no geometry to frame
+  const LABEL_MAX = 400; // robots in view above which labels are drawn only when zoomed in
+
+  // ---- state ------------------------------------------------------------------------------
+  const S = {
+    world: null,          // {name, bounds:[x0,y0,x1,y1], polygons:[[x,y,...]], circles:[[x,y,r]]}
+    meta: null,           // {version, palette, footprints, robots:[[ns,name,model,fp,color]]}
+    index: new Map(),     // ns -> row index in meta.robots
+    reach: [],            // per footprint: farthest vertex from the origin (m)
+    frame: null,          // the latest decoded frame
+    drawnSeq: 0,
+    view: { cx: 0, cy: 0, scale: 50 },  // world centre of the canvas, CSS px per metre
+    width: 0, height: 0, dpr: 1,
+    autoFit: true,        // until the user pans or zooms, keep the content framed
+    edges: [],            // obstacle outline segments [x0, y0, x1, y1]
+    fitted: null,         // robots rectangle last auto-fitted (obstacle-free worlds)
+    selected: null,
+    follow: false,
+    opts: { scans: true, trails: true, labels: true },
+    dirty: true,
+    ws: null,
+  };
+
+  const stats = {
+    frames: 0, fps: 0, msgs: 0, robots: 0, scans: 0, scanPoints: 0, trails: 0, trailPoints: 0,
+    beamStep: 1, bytes: 0, drawMs: 0, simTime: 0, seq: 0, skipped: 0, connected: false,
+    world: "", metaVersion: -1,
+  };
+  const drawTimes = [];
+  window.viewerStats = stats;
+
+  // World (x right, y up, metres) <-> canvas CSS pixels.
+  const sx = (x) => (x - S.view.cx) * S.view.scale + S.width / 2;
+  const sy = (y) => S.height / 2 - (y - S.view.cy) * S.view.scale;
+  const wx = (px) => S.view.cx + (px - S.width / 2) / S.view.scale;
+  const wy = (py) => S.view.cy - (py - S.height / 2) / S.view.scale;
+
+  function hexRgb(hex) {
+    return [1, 3, 5].map((i) => parseInt(hex.slice(i, i + 2), 16));
+  }
+  function robotColor(row) {
+    const pal = S.meta ? S.meta.palette : ["#4cc9f0"];
+    return pal[row[4] % pal.length];
+  }
+  function robotPose(i) {
+    const p = S.frame && S.frame.poses;
+    if (!p || 5 * i + 4 >= p.length) return null;
+    return { x: p[5 * i], y: p[5 * i + 1], yaw: p[5 * i + 2], v: p[5 * i + 3], w: p[5 * i + 4] };
+  }
+
+  // Test and debugging hooks (page pixels, colours, robot state).
+  stats.toScreen = (x, y) => {
+    const r = canvas.getBoundingClientRect();
+    return [r.left + sx(x), r.top + sy(y)];
+  };
+  stats.colorOf = (ns) => {
+    const i = S.index.get(ns);
+    return i === undefined ? null : hexRgb(robotColor(S.meta.robots[i]));
+  };
+  stats.robot = (ns) => {
+    const i = S.index.get(ns);
+    if (i === undefined) return null;
+    const row = S.meta.robots[i];
+    return { namespace: row[0], name: row[1], model: row[2], ...robotPose(i) };
+  };
+  stats.names = () => (S.meta ? S.meta.robots.map((r) => r[0]) : []);
+  stats.select = (ns) => select(ns);
+  stats.view = () => ({ ...S.view, width: S.width, height: S.height });
+
+  // ---- connection -------------------------------------------------------------------------
+  function connect() {
+    const proto = location.protocol === "https:" ? "wss:" : "ws:";
+    const ws = new WebSocket(`${proto}//${location.host}/ws`);
+    ws.binaryType = "arraybuffer";
+    S.ws = ws;
+    ws.onopen = () => {
+      stats.connected = true;
+      sendView(true);
+      updateStatus();
+    };
+    ws.onclose = () => {
+      stats.connected = false;
+      S.ws = null;
+      updateStatus();
+      setTimeout(connect, 1000);
+    };
+    ws.onmessage = (ev) => {
+      if (typeof ev.data === "string") {
+        const msg = JSON.parse(ev.data);
+        if (msg.type === "world") onWorld(msg);
+        else if (msg.type === "meta") onMeta(msg);
+        return;
+      }
+      const f = decodeFrame(ev.data);
+      if (!S.meta || f.meta !== S.meta.version) return; // cannot happen: meta comes first
+      S.frame = f;
+      stats.msgs += 1;
+      stats.bytes = ev.data.byteLength;
+      S.dirty = true;
+      // Received: the server may send the next one. Only the latest frame is ever drawn;
+      // a page too busy to run this handler stops the acks and the server skips ticks.
+      ws.send(`{"type":"ack","seq":${f.seq}}`);
+    };
+  }
+
+  function decodeFrame(buf) {
+    const dv = new DataView(buf);
+    const hlen = dv.getUint32(0, true);
+    const h = JSON.parse(new TextDecoder().decode(new Uint8Array(buf, 4, hlen)));
+    let off = 4 + hlen;
+    const take = (Type, n) => {
+      const a = new Type(buf, off, n);
+      off += n * Type.BYTES_PER_ELEMENT;
+      return a;
+    };
+    h.poses = take(Float32Array, 5 * h.n);
+    h.scanIdx = take(Uint32Array, h.scans);
+    h.scanCnt = take(Uint32Array, h.scans);
+    h.scanPts = take(Float32Array, 2 * h.scan_points);
+    h.trailIdx = take(Uint32Array, h.trails);
+    h.trailCnt = take(Uint32Array, h.trails);
+    h.trailPts = take(Float32Array, 2 * h.trail_points);
+    return h;
+  }
+
+  // Polygon edges minus those two polygons share: a wall split into convex pieces is
+  // outlined as one shape (same rule as snapshot.outer_edges).
+  function outerEdges(polygons) {
+    const key = (x0, y0, x1, y1) => {
+      const a = `${x0.toFixed(4)},${y0.toFixed(4)}`, b = `${x1.toFixed(4)},${y1.toFixed(4)}`;
+      return a < b ? `${a}|${b}` : `${b}|${a}`;
+    };
+    const edges = [];
+    for (const p of polygons) {
+      for (let i = 0; i < p.length; i += 2) {
+        const j = (i + 2) % p.length;
+        edges.push([p[i], p[i + 1], p[j], p[j + 1]]);
+      }
+    }
+    const count = new Map();
+    for (const e of edges) count.set(key(...e), (count.get(key(...e)) || 0) + 1);
+    return edges.filter((e) => count.get(key(...e)) === 1);
+  }
+
+  function onWorld(msg) {
+    S.world = msg;
+    S.edges = outerEdges(msg.polygons);
+    stats.world = msg.name;
+    $("world-name").textContent = msg.name || "(no world)";
+    document.title = `fleet-view · ${msg.name}`;
+    worldCache.key = "";
+    if (S.autoFit) fitContent();
+    S.dirty = true;
+  }
+
+  function onMeta(msg) {
+    S.meta = msg;
+    S.index = new Map(msg.robots.map((r, i) => [r[0], i]));
+    S.reach = msg.footprints.map((fp) => {
+      let m = 0.05;
+      for (let i = 0; i < fp.length; i += 2) m = Math.max(m, Math.hypot(fp[i], fp[i + 1]));
+      return m;
+    });
+    stats.metaVersion = msg.version;
+    stats.robots = msg.robots.length;
+    if (S.selected && !S.index.has(S.selected)) select(null);
+    S.frame = null; // frames of the old version no longer line up
+    renderList();
+    S.dirty = true;
+  }
+
+  let viewTimer = null;
+  let lastView = "";
+  function sendView(now) {
+    if (viewTimer) return;
+    const go = () => {
+      viewTimer = null;
+      if (!S.ws || S.ws.readyState !== WebSocket.OPEN) return;
+      const rect = [wx(0), wy(S.height), wx(S.width), wy(0)].map((v) => +v.toFixed(2));
+      const msg = JSON.stringify({
+        type: "view", rect, scans: S.opts.scans, trails: S.opts.trails, selected: S.selected,
+      });
+      if (msg !== lastView || now) S.ws.send(msg);
+      lastView = msg;
+    };
+    if (now) go();
+    else viewTimer = setTimeout(go, 80);
+  }
+
+  // ---- view -------------------------------------------------------------------------------
+  function robotsRect() {
+    const f = S.frame;
+    if (!f || f.n === 0) return null;
+    let x0 = Infinity, y0 = Infinity, x1 = -Infinity, y1 = -Infinity;
+    for (let i = 0; i < f.n; i++) {
+      const x = f.poses[5 * i], y = f.poses[5 * i + 1];
+      if (x < x0) x0 = x; if (x > x1) x1 = x;
+      if (y < y0) y0 = y; if (y > y1) y1 = y;
+    }
+    return [x0 - ROBOTS_PAD, y0 - ROBOTS_PAD, x1 + ROBOTS_PAD, y1 + ROBOTS_PAD];
+  }
+  function worldRect() {
+    const w = S.world;
+    return w && w.bounds ? w.bounds : null;
+  }
+  function fitRect(r) {
+    if (!r || !S.width) return;
+    const m = 0.04 * Math.min(S.width, S.height);
+    const top = Math.max(m, 52); // keep the content clear of the toolbar
+    const scale = Math.min((S.width - 2 * m) / Math.max(r[2] - r[0], 1e-3),
+                           (S.height - m - top) / Math.max(r[3] - r[1], 1e-3));
+    const cy = (r[1] + r[3]) / 2 + (top - m) / 2 / scale;
+    S.view = { cx: (r[0] + r[2]) / 2, cy, scale: clampScale(scale) };
+    S.dirty = true;
+    sendView();
+  }
+  // Same rule as snapshot.content_rect: the world if it has geometry, else the robots.
+  function fitContent() {
+    const w = S.world;
+    const geometry = w && (w.polygons.length || w.circles.length);
+    fitRect(geometry ? worldRect() : robotsRect() || [-5, -5, 5, 5]);
+  }
+  const clampScale = (s) => Math.min(4000, Math.max(0.2, s));
+
+  function resize() {
+    const r = canvas.getBoundingClientRect();
+    S.dpr = window.devicePixelRatio || 1;
+    S.width = Math.max(1, r.width);
+    S.height = Math.max(1, r.height);
+    canvas.width = Math.round(S.width * S.dpr);
+    canvas.height = Math.round(S.height * S.dpr);
+    if (S.autoFit) fitContent();
+    S.dirty = true;
+    sendView();
+  }
+  new ResizeObserver(resize).observe(canvas);
+
+  // pan, zoom, select
+  let drag = null;
+  canvas.addEventListener("pointerdown", (e) => {
+    drag = { x: e.clientX, y: e.clientY, cx: S.view.cx, cy: S.view.cy, moved: false };
+    canvas.setPointerCapture(e.pointerId);
+  });
+  canvas.addEventListener("pointermove", (e) => {
+    if (!drag) return;
+    const dx = e.clientX - drag.x, dy = e.clientY - drag.y;
+    if (!drag.moved && Math.hypot(dx, dy) < 4) return;
+    drag.moved = true;
+    canvas.classList.add("dragging");
+    S.autoFit = false;
+    S.follow = false;
+    $("sel-follow").checked = false;
+    S.view.cx = drag.cx - dx / S.view.scale;
+    S.view.cy = drag.cy + dy / S.view.scale;
+    S.dirty = true;
+    sendView();
+  });
+  canvas.addEventListener("pointerup", (e) => {
+    if (drag && !drag.moved) {
+      const r = canvas.getBoundingClientRect();
+      select(pick(e.clientX - r.left, e.clientY - r.top));
+    }
+    drag = null;
+    canvas.classList.remove("dragging");
+  });
+  canvas.addEventListener("wheel", (e) => {
+    e.preventDefault();
+    const r = canvas.getBoundingClientRect();
+    const px = e.clientX - r.left, py = e.clientY - r.top;
+    const x = wx(px), y = wy(py);
+    const k = Math.exp(-e.deltaY * (e.deltaMode === 1 ? 0.05 : 0.0015));
+    S.view.scale = clampScale(S.view.scale * k);
+    S.view.cx = x - (px - S.width / 2) / S.view.scale;
+    S.view.cy = y + (py - S.height / 2) / S.view.scale;
+    S.autoFit = false;
+    S.dirty = true;
+    sendView();
+  }, { passive: false });
+
+  function pick(px, py) {
+    const f = S.frame;
+    if (!f || !S.meta) return null;
+    const x = wx(px), y = wy(py);
+    let best = null, bestD = Infinity;
+    for (let i = 0; i < f.n; i++) {
+      const d = Math.hypot(f.poses[5 * i] - x, f.poses[5 * i + 1] - y);
+      const reach = S.reach[S.meta.robots[i][3]] || 0.1;
+      if (d < Math.max(reach * 1.2, 10 / S.view.scale) && d < bestD) {
+        best = S.meta.robots[i][0];
+        bestD = d;
+      }
+    }
+    return best;
+  }
+
+  function select(ns) {
+    S.selected = ns;
+    $("selected").hidden = !ns;
+    for (const li of $("robot-list").children) li.classList.toggle("sel", li.dataset.ns === ns);
+    updateSelected();
+    S.dirty = true;
+    sendView(true);
+  }
+
+  // toolbar and keys
+  $("fit-world").onclick = () => { S.autoFit = true; fitContent(); };
+  $("fit-robots").onclick = () => { S.autoFit = false; fitRect(robotsRect()); };
+  for (const k of ["scans", "trails", "labels"]) {
+    $(`show-${k}`).onchange = (e) => { S.opts[k] = e.target.checked; S.dirty = true; sendView(true); };
+  }
+  $("sel-close").onclick = () => select(null);
+  $("sel-follow").onchange = (e) => { S.follow = e.target.checked; if (S.follow) S.autoFit = false; };
+  $("filter").oninput = () => renderList();
+  $("robot-list").onclick = (e) => {
+    const li = e.target.closest("li");
+    if (!li) return;
+    select(li.dataset.ns);
+    const i = S.index.get(li.dataset.ns);
+    const p = robotPose(i);
+    if (p) {
+      S.autoFit = false;
+      S.view.cx = p.x;
+      S.view.cy = p.y;
+      if (S.view.scale < 60) S.view.scale = 120;
+      S.dirty = true;
+      sendView();
+    }
+  };
+  window.addEventListener("keydown", (e) => {
+    if (e.target instanceof HTMLInputElement && e.target.type !== "checkbox") return;
+    if (e.key === "Escape") select(null);
+    else if (e.key === "f") $("fit-world").click();
+    else if (e.key === "r") $("fit-robots").click();
+  });
+
+  // ---- side panel -------------------------------------------------------------------------
+  function escapeHtml(s) {
+    return s.replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
+  }
+  function renderList() {
+    const robots = S.meta ? S.meta.robots : [];
+    $("robot-count").textContent = robots.length;
+    const byModel = {};
+    for (const r of robots) byModel[r[2]] = (byModel[r[2]] || 0) + 1;
+    $("model-counts").textContent = Object.keys(byModel).sort()
+      .map((m) => `${m} ${byModel[m]}`).join(" · ") || "no robots";
+    const q = $("filter").value.trim().toLowerCase();
+    const shown = q ? robots.filter((r) => r[0].toLowerCase().includes(q) || r[1].toLowerCase().includes(q)) : robots;
+    const limit = 2000;
+    $("robot-list").innerHTML = shown.slice(0, limit).map((r) => {
+      const label = r[1] === r[0] ? r[1] : `${r[1]} <span class="model">/${r[0]}</span>`;
+      return `<li data-ns="${escapeHtml(r[0])}" class="${r[0] === S.selected ? "sel" : ""}">` +
+        `<span><span class="swatch" style="background:${robotColor(r)}"></span>${label}</span>` +
+        `<span class="model">${escapeHtml(r[2])}</span></li>`;
+    }).join("") + (shown.length > limit ? `<li class="muted">… ${shown.length - limit} more</li>` : "");
+  }
+
+  const fmt = (v, d) => (Number.isFinite(v) ? v.toFixed(d) : "—");
+  function updateSelected() {
+    const ns = S.selected;
+    if (!ns || !S.meta) return;
+    const i = S.index.get(ns);
+    if (i === undefined) return;
+    const row = S.meta.robots[i];
+    const p = robotPose(i) || {};
+    $("sel-swatch").style.background = robotColor(row);
+    $("sel-name").textContent = row[1];
+    $("sel-name2").textContent = row[1];
+    $("sel-ns").textContent = row[0];
+    $("sel-model").textContent = row[2];
+    $("sel-x").textContent = `${fmt(p.x, 3)} m`;
+    $("sel-y").textContent = `${fmt(p.y, 3)} m`;
+    $("sel-yaw").textContent = `${fmt(p.yaw, 3)} rad (${fmt((p.yaw * 180) / Math.PI, 1)}°)`;
+    $("sel-v").textContent = `${fmt(p.v, 3)} m/s`;
+    $("sel-w").textContent = `${fmt(p.w, 3)} rad/s`;
+  }
+
+  function updateStatus() {
+    const now = performance.now();
+    while (drawTimes.length && drawTimes[0] < now - 2000) drawTimes.shift();
+    if (drawTimes.length < 2) stats.fps = 0;
+    $("conn").classList.toggle("off", !stats.connected);
+    const f = S.frame;
+    $("status-text").textContent = stats.connected
+      ? `t ${fmt(stats.simTime, 1)} s · ${stats.robots} robots · ${fmt(stats.fps, 1)} fps`
+      : "disconnected, retrying…";
+    if (f) {
+      const step = f.beam_step > 1 ? `, every ${f.beam_step}${ordinal(f.beam_step)} beam` : "";
+      $("perf").textContent =
+        `frame ${(stats.bytes / 1024).toFixed(1)} KB · draw ${stats.drawMs.toFixed(1)} ms\n` +
+        `scans ${f.scans} robots, ${f.scan_points} points${step}\n` +
+        `trails ${f.trails} robots, ${f.trail_points} points\n` +
+        `server: build ${fmt(f.stats.build_ms, 1)} ms · skipped ${f.stats.skipped || 0} ticks`;
+    }
+  }
+  const ordinal = (n) => (n % 10 === 2 && n !== 12 ? "nd" : n % 10 === 3 && n !== 13 ? "rd" : "th");
+
+  // ---- drawing ----------------------------------------------------------------------------
+  const worldCache = { canvas: document.createElement("canvas"), key: "" };
+
+  function drawWorld() {
+    const key = `${S.view.cx},${S.view.cy},${S.view.scale},${canvas.width},${canvas.height}`;
+    const c = worldCache.canvas;
+    if (worldCache.key !== key) {
+      worldCache.key = key;
+      c.width = canvas.width;
+      c.height = canvas.height;
+      const g = c.getContext("2d", { alpha: false });
+      g.setTransform(S.dpr, 0, 0, S.dpr, 0, 0);
+      g.fillStyle = COLORS.bg;
+      g.fillRect(0, 0, S.width, S.height);
+      const w = S.world;
+      if (w && w.bounds) {
+        const [x0, y0, x1, y1] = w.bounds;
+        g.fillStyle = COLORS.floor;
+        g.fillRect(sx(x0), sy(y1), (x1 - x0) * S.view.scale, (y1 - y0) * S.view.scale);
+        // grid, clipped to the bounds and to the screen
+        const step = gridStep();
+        g.beginPath();
+        const gx0 = Math.max(x0, wx(0)), gx1 = Math.min(x1, wx(S.width));
+        const gy0 = Math.max(y0, wy(S.height)), gy1 = Math.min(y1, wy(0));
+        for (let x = Math.ceil(gx0 / step) * step; x <= gx1; x += step) {
+          const px = Math.round(sx(x)) + 0.5;
+          g.moveTo(px, sy(gy0)); g.lineTo(px, sy(gy1));
+        }
+        for (let y = Math.ceil(gy0 / step) * step; y <= gy1; y += step) {
+          const py = Math.round(sy(y)) + 0.5;
+          g.moveTo(sx(gx0), py); g.lineTo(sx(gx1), py);
+        }
+        g.strokeStyle = COLORS.grid;
+        g.lineWidth = 1;
+        g.stroke();
+        g.strokeStyle = COLORS.bounds;
+        g.setLineDash([6, 4]);
+        g.strokeRect(sx(x0), sy(y1), (x1 - x0) * S.view.scale, (y1 - y0) * S.view.scale);
+        g.setLineDash([]);
+      }
+      if (w) {
+        g.beginPath();
+        for (const poly of w.polygons) {
+          g.moveTo(sx(poly[0]), sy(poly[1]));
+          for (let i = 2; i < poly.length; i += 2) g.lineTo(sx(poly[i]), sy(poly[i + 1]));
+          g.closePath();
+        }
+        g.fillStyle = COLORS.obstacle;
+        g.fill();
+        g.beginPath();
+        for (const [x0, y0, x1, y1] of S.edges) {
+          g.moveTo(sx(x0), sy(y0));
+          g.lineTo(sx(x1), sy(y1));
+        }
+        for (const [x, y, r] of w.circles) {
+          g.moveTo(sx(x + r), sy(y));
+          g.arc(sx(x), sy(y), r * S.view.scale, 0, 2 * Math.PI);
+        }
+        g.fillStyle = COLORS.obstacle;
+        g.fill();
+        g.strokeStyle = COLORS.obstacleEdge;
+        g.lineWidth = 1;
+        g.stroke();
+      }
+    }
+    ctx.setTransform(1, 0, 0, 1, 0, 0);
+    ctx.drawImage(c, 0, 0);
+    ctx.setTransform(S.dpr, 0, 0, S.dpr, 0, 0);
+  }
+
+  function gridStep() {
+    for (const s of [0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100]) if (s * S.view.scale >= 36) return s;
+    return 200;
+  }
+
+  function groupPaths() {
+    const pal = S.meta.palette;
+    return pal.map(() => new Path2D());
+  }
+
+  function draw() {
+    const t0 = performance.now();
+    if (S.follow && S.selected && S.frame) {
+      const p = robotPose(S.index.get(S.selected));
+      if (p) { S.view.cx = p.x; S.view.cy = p.y; sendView(); }
+    }
+    drawWorld();
+    const f = S.frame;
+    const meta = S.meta;
+    if (f && meta) {
+      const pal = meta.palette;
+      const scale = S.view.scale;
+      // trails
+      if (S.opts.trails && f.trails) {
+        const paths = groupPaths();
+        let off = 0;
+        for (let k = 0; k < f.trails; k++) {
+          const i = f.trailIdx[k], n = f.trailCnt[k];
+          const p = paths[meta.robots[i][4] % pal.length];
+          for (let j = 0; j < n; j++) {
+            const x = sx(f.trailPts[2 * (off + j)]), y = sy(f.trailPts[2 * (off + j) + 1]);
+            if (j === 0) p.moveTo(x, y); else p.lineTo(x, y);
+          }
+          if (n) p.lineTo(sx(f.poses[5 * i]), sy(f.poses[5 * i + 1])); // up to the robot
+          off += n;
+        }
+        ctx.globalAlpha = 0.5;
+        ctx.lineWidth = 2;
+        ctx.lineJoin = "round";
+        ctx.lineCap = "round";
+        paths.forEach((p, c) => { ctx.strokeStyle = pal[c]; ctx.stroke(p); });
+        ctx.globalAlpha = 1;
+      }
+      // scans
+      if (S.opts.scans && f.scans) {
+        const paths = groupPaths();
+        const d = scale > 150 ? 2.5 : 2;
+        let off = 0;
+        for (let k = 0; k < f.scans; k++) {
+          const i = f.scanIdx[k], n = f.scanCnt[k];
+          const p = paths[meta.robots[i][4] % pal.length];
+          for (let j = off; j < off + n; j++) p.rect(sx(f.scanPts[2 * j]) - d / 2, sy(f.scanPts[2 * j + 1]) - d / 2, d, d);
+          off += n;
+        }
+        ctx.globalAlpha = 0.85;
+        paths.forEach((p, c) => { ctx.fillStyle = pal[c]; ctx.fill(p); });
+        ctx.globalAlpha = 1;
+      }
+      // robots: footprint filled in the robot's colour, dark outline, white heading mark
+      const bodies = groupPaths();
+      const dots = groupPaths();
+      const heads = new Path2D();
+      const xmin = wx(0) - 1, xmax = wx(S.width) + 1, ymin = wy(S.height) - 1, ymax = wy(0) + 1;
+      const visible = [];
+      for (let i = 0; i < f.n; i++) {
+        const x = f.poses[5 * i], y = f.poses[5 * i + 1], yaw = f.poses[5 * i + 2];
+        if (x < xmin || x > xmax || y < ymin || y > ymax) continue;
+        visible.push(i);
+        const row = meta.robots[i];
+        const fp = meta.footprints[row[3]];
+        const c = Math.cos(yaw), s = Math.sin(yaw);
+        const reach = S.reach[row[3]];
+        if (reach * scale < 4) { // too small for a shape or a heading: a dot
+          const d = Math.max(2.5, 1.6 * reach * scale);
+          dots[row[4] % pal.length].rect(sx(x) - d / 2, sy(y) - d / 2, d, d);
+          continue;
+        }
+        const p = bodies[row[4] % pal.length];
+        for (let j = 0; j < fp.length; j += 2) {
+          const px = sx(x + c * fp[j] - s * fp[j + 1]), py = sy(y + s * fp[j] + c * fp[j + 1]);
+          if (j === 0) p.moveTo(px, py); else p.lineTo(px, py);
+        }
+        p.closePath();
+        const nose = reach * 1.45;
+        heads.moveTo(sx(x), sy(y));
+        heads.lineTo(sx(x + c * nose), sy(y + s * nose));
+      }
+      ctx.lineWidth = 1;
+      ctx.strokeStyle = COLORS.robotEdge;
+      bodies.forEach((p, c) => { ctx.fillStyle = pal[c]; ctx.fill(p); ctx.stroke(p); });
+      dots.forEach((p, c) => { ctx.fillStyle = pal[c]; ctx.fill(p); });
+      ctx.strokeStyle = COLORS.heading;
+      ctx.lineWidth = Math.min(3, Math.max(1, scale / 60));
+      ctx.lineCap = "round";
+      ctx.stroke(heads);
+      // selection ring
+      const sel = S.selected !== null ? S.index.get(S.selected) : undefined;
+      if (sel !== undefined) {
+        const x = f.poses[5 * sel], y = f.poses[5 * sel + 1];
+        const r = S.reach[meta.robots[sel][3]] * scale + 6;
+        ctx.beginPath();
+        ctx.arc(sx(x), sy(y), r, 0, 2 * Math.PI);
+        ctx.strokeStyle = COLORS.select;
+        ctx.lineWidth = 1.5;
+        ctx.setLineDash([4, 3]);
+        ctx.stroke();
+        ctx.setLineDash([]);
+      }
+      // labels: name (and namespace when it differs)
+      if (S.opts.labels && (visible.length <= LABEL_MAX || scale >= 60)) {
+        ctx.font = "12px system-ui, sans-serif";
+        ctx.textBaseline = "bottom";
+        for (const i of visible) labelRobot(i, f, meta, scale);
+      } else if (sel !== undefined) {
+        ctx.font = "12px system-ui, sans-serif";
+        ctx.textBaseline = "bottom";
+        labelRobot(sel, f, meta, scale);
+      }
+    }
+    drawScaleBar();
+    const ms = performance.now() - t0;
+    stats.drawMs = stats.drawMs ? 0.9 * stats.drawMs + 0.1 * ms : ms;
+  }
+
+  function labelRobot(i, f, meta, scale) {
+    const row = meta.robots[i];
+    const text = row[1] === row[0] ? row[1] : `${row[1]} (${row[0]})`;
+    const r = S.reach[row[3]] * scale;
+    const x = sx(f.poses[5 * i]) + r + 3, y = sy(f.poses[5 * i + 1]) - r;
+    ctx.fillStyle = COLORS.bg;
+    ctx.fillText(text, x + 1, y + 1);
+    ctx.fillStyle = COLORS.text;
+    ctx.fillText(text, x, y);
+  }
+
+  function drawScaleBar() {
+    const step = gridStep();
+    const len = step * S.view.scale;
+    const x = 14, y = S.height - 16;
+    ctx.strokeStyle = COLORS.text;
+    ctx.lineWidth = 2;
+    ctx.beginPath();
+    ctx.moveTo(x, y - 4); ctx.lineTo(x, y); ctx.lineTo(x + len, y); ctx.lineTo(x + len, y - 4);
+    ctx.stroke();
+    ctx.fillStyle = COLORS.muted;
+    ctx.font = "11px system-ui, sans-serif";
+    ctx.textBaseline = "middle";
+    ctx.fillText(`${step} m`, x + len + 6, y - 2);
+  }
+
+  // ---- loop -------------------------------------------------------------------------------
+  function loop(now) {
+    requestAnimationFrame(loop);
+    const f = S.frame;
+    if (f && S.autoFit && !(S.world && (S.world.polygons.length || S.world.circles.length))) {
+      // an obstacle-free world: keep the robots framed until the user takes over
+      const r = robotsRect();
+      if (r && (!S.fitted || r.some((v, k) => Math.abs(v - S.fitted[k]) > 0.5))) {
+        S.fitted = r;
+        fitRect(r);
+      }
+    }
+    if (!S.dirty) return;
+    S.dirty = false;
+    draw();
+    if (f && f.seq !== S.drawnSeq) {
+      S.drawnSeq = f.seq;
+      stats.frames += 1;
+      stats.seq = f.seq;
+      stats.simTime = f.t;
+      stats.scans = f.scans;
+      stats.scanPoints = f.scan_points;
+      stats.trails = f.trails;
+      stats.trailPoints = f.trail_points;
+      stats.beamStep = f.beam_step;
+      stats.skipped = f.stats.skipped || 0;
+      drawTimes.push(now);
+      while (drawTimes.length && drawTimes[0] < now - 2000) drawTimes.shift();
+      stats.fps = drawTimes.length > 1 ? (1000 * (drawTimes.length - 1)) / (now - drawTimes[0]) : 0;
+      updateSelected();
+    }
+  }
+  setInterval(updateStatus, 250);
+  resize();
+  connect();
+  requestAnimationFrame(loop);
+})();
