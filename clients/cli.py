@@ -208,6 +208,9 @@ def run(command: str, args: argparse.Namespace, parser: argparse.ArgumentParser)
             return handler.run(client, args, plan)
     except UsageError as e:
         parser.error(str(e))  # exits 2
+    except BrokenPipeError:  # `fleet list | head`: the reader left; that is not an error
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - keeps the interpreter's final flush quiet
+        return 0
     except FleetError as e:
         if e.code in NO_DAEMON_CODES:
             return _no_daemon(args)

@@ -1,0 +1,144 @@
+"""Container healthcheck: ask the running daemon for its clock over zenoh.
+
+``python -m simd.healthcheck`` exits 0 when ``<prefix>/clock`` answers within the timeout
+(2 s by default) and 1 otherwise. The clock is answered by the simulation thread, so this
+checks the whole daemon (session, queryables and the tick loop), not only its process.
+
+Where to ask, first match wins:
+
+1. ``-e/--connect ENDPOINT`` and ``--prefix PREFIX`` on the command line;
+2. the file the container entrypoint writes (``SIMD_STATE_FILE``, default
+   ``/tmp/fleetsim-simd.json``), which holds the daemon's effective listen endpoints
+   (wildcard addresses turned into loopback) and prefix, wherever they came from;
+3. the variables ``SIMD_LISTEN`` (or ``SIMD_CONNECT`` when ``SIMD_MODE=client``) and
+   ``SIMD_PREFIX``;
+4. ``tcp/127.0.0.1:7447`` and prefix ``fleet``.
+
+``SIMD_HEALTH_TIMEOUT`` (seconds) changes the default timeout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import sys
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from protocol.keys import DEFAULT_PREFIX
+from protocol.zenoh_config import ZenohOptions
+from simd.container_entry import DEFAULT_LISTEN, DEFAULT_STATE_FILE, local_endpoint
+
+DEFAULT_TIMEOUT = 2.0
+
+
+@dataclass
+class Target:
+    connect: list[str]
+    prefix: str
+    source: str
+
+
+def _split(value: str) -> list[str]:
+    return [e for e in re.split(r"[,\s]+", value) if e]
+
+
+def resolve_target(connect: Sequence[str] | None, prefix: str | None, env: Mapping[str, str]) -> Target:
+    """Where the daemon is, by the rules in the module docstring."""
+    if connect:
+        return Target(list(connect), prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "command line")
+    state_file = env.get("SIMD_STATE_FILE", DEFAULT_STATE_FILE)
+    try:
+        state: Any = json.loads(Path(state_file).read_text())
+        endpoints = [str(e) for e in state["connect"]]
+        if endpoints:
+            return Target(endpoints, prefix or str(state["prefix"]), state_file)
+    except (OSError, ValueError, KeyError, TypeError):
+        pass
+    if env.get("SIMD_MODE", "").strip() == "client" and env.get("SIMD_CONNECT"):
+        endpoints = _split(env["SIMD_CONNECT"])
+    else:
+        endpoints = [local_endpoint(e) for e in _split(env.get("SIMD_LISTEN", "") or DEFAULT_LISTEN)]
+    return Target(endpoints, prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "environment")
+
+
+def _short(e: BaseException) -> str:
+    """zenoh errors end with ' at /path/to/file.rs:NN'; keep the message."""
+    msg = str(e).strip().strip("'")
+    cut = msg.rfind(" at ")
+    if cut > 0 and ".rs:" in msg[cut:]:
+        msg = msg[:cut]
+    return msg
+
+
+def check(target: Target, timeout: float) -> tuple[bool, str]:
+    """Query ``<prefix>/clock``; (healthy, message)."""
+    import zenoh
+
+    t0 = time.monotonic()
+    conf = ZenohOptions(mode="client", connect=target.connect).build()
+    conf.insert_json5("connect/timeout_ms", str(max(1, int(timeout * 1000))))
+    where = ", ".join(target.connect)
+    try:
+        session: Any = zenoh.open(conf)
+    except zenoh.ZError as e:
+        return False, f"cannot connect to {where}: {_short(e)}"
+    try:
+        left = max(0.2, timeout - (time.monotonic() - t0))
+        key = f"{target.prefix}/clock"
+        for reply in session.get(f"{key}?format=json", timeout=left):
+            if reply.ok is not None:
+                body = reply.ok.payload.to_bytes().decode("utf-8", "replace")
+                ms = (time.monotonic() - t0) * 1000
+                return True, f"{key} answered via {where} in {ms:.0f} ms: {body}"
+            err = reply.err
+            detail = err.payload.to_bytes().decode("utf-8", "replace") if err is not None else "?"
+            return False, f"{key} via {where} answered with an error: {detail}"
+        return False, f"no answer on {key} via {where} within {timeout:g} s"
+    finally:
+        session.close()
+
+
+def main(argv: Sequence[str] | None = None, env: Mapping[str, str] | None = None) -> int:
+    environ = os.environ if env is None else env
+    p = argparse.ArgumentParser(
+        prog="python -m simd.healthcheck",
+        description="Exit 0 if a fleetsim daemon answers its clock query, else 1.",
+    )
+    p.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        metavar="ENDPOINT",
+        help="daemon endpoint (default: from the entrypoint's state file or SIMD_LISTEN)",
+    )
+    p.add_argument("--prefix", help="key prefix (default: the daemon's, or SIMD_PREFIX, or fleet)")
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=None,
+        help=f"seconds (default: SIMD_HEALTH_TIMEOUT or {DEFAULT_TIMEOUT:g})",
+    )
+    args = p.parse_args(argv)
+    timeout = args.timeout
+    if timeout is None:
+        try:
+            timeout = float(environ.get("SIMD_HEALTH_TIMEOUT", "") or DEFAULT_TIMEOUT)
+        except ValueError:
+            timeout = DEFAULT_TIMEOUT
+    target = resolve_target(args.connect, args.prefix, environ)
+    try:
+        ok, message = check(target, timeout)
+    except Exception as e:  # a healthcheck reports, it does not crash with a traceback
+        ok, message = False, f"{type(e).__name__}: {e}"
+    print(f"simd {'healthy' if ok else 'UNHEALTHY'}: {message}", flush=True)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
