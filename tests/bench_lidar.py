@@ -12,7 +12,9 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import os
 import pstats
+import resource
 import statistics
 import sys
 import time
@@ -24,7 +26,7 @@ import numpy.typing as npt
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from simd.lidar import LidarSpec, StaticScene, cast  # noqa: E402
+from simd.lidar import LidarSpec, StaticScene, cast
 
 F64 = npt.NDArray[np.float64]
 
@@ -33,9 +35,18 @@ ARENA = 60.0
 # |y| in [0.062, 0.089]; the union's outline has 12 vertices
 BURGER = np.array(
     [
-        (0.038, -0.070), (0.038, 0.070), (0.033, 0.070), (0.033, 0.089),
-        (-0.033, 0.089), (-0.033, 0.070), (-0.102, 0.070), (-0.102, -0.070),
-        (-0.033, -0.070), (-0.033, -0.089), (0.033, -0.089), (0.033, -0.070),
+        (0.038, -0.070),
+        (0.038, 0.070),
+        (0.033, 0.070),
+        (0.033, 0.089),
+        (-0.033, 0.089),
+        (-0.033, 0.070),
+        (-0.102, 0.070),
+        (-0.102, -0.070),
+        (-0.033, -0.070),
+        (-0.033, -0.089),
+        (0.033, -0.089),
+        (0.033, -0.070),
     ]
 )
 LIDAR_OFFSET = (-0.032, 0.0)
@@ -47,9 +58,7 @@ def box_segments(cx: float, cy: float, w: float, h: float) -> F64:
     return np.array([(*pts[i], *pts[(i + 1) % 4]) for i in range(4)])
 
 
-def build_world(
-    robots: int, seed: int = 1
-) -> tuple[StaticScene, F64, F64, F64, F64, npt.NDArray[np.int64]]:
+def build_world(robots: int, seed: int = 1) -> tuple[StaticScene, F64, F64, F64, F64, npt.NDArray[np.int64]]:
     """Arena and robots: scene, static segments, circles, robot poses (x, y, yaw), outlines, ids."""
     rng = np.random.default_rng(seed)
     segs = [box_segments(ARENA / 2, ARENA / 2, ARENA, ARENA)]
@@ -165,35 +174,47 @@ def main() -> None:
         return naive_cast(spec, segments, circles, o, h, rows.astype(np.int64), dyn, ids)
 
     # agreement on the first batch
-    fast, ref = run_fast(batches[0]), run_naive(batches[0])
-    same_inf = np.array_equal(np.isinf(fast), np.isinf(ref))
-    fin = np.isfinite(fast) & np.isfinite(ref)
-    err = float(np.max(np.abs(fast[fin] - ref[fin]))) if fin.any() else 0.0
-    print(f"agreement: inf pattern equal={same_inf}, max |diff| {err:.2e} m, "
-          f"hits {int(fin.sum())}/{fast.size}")
+    got, ref = run_fast(batches[0]), run_naive(batches[0])
+    same_inf = np.array_equal(np.isinf(got), np.isinf(ref))
+    fin = np.isfinite(got) & np.isfinite(ref)
+    err = float(np.max(np.abs(got[fin] - ref[fin]))) if fin.any() else 0.0
+    print(f"agreement with naive: same +inf beams {same_inf}, max |diff| {err:.2e} m, hits {int(fin.sum())}/{got.size}")
 
     run_fast(batches[1])  # warm-up
-    def timed(fn: Callable[[npt.NDArray[np.int64]], object], repeats: int) -> tuple[float, float]:
-        """Median wall and CPU (process) time in ms; CPU time is less hurt by a busy machine."""
+
+    def timed(fn: Callable[[npt.NDArray[np.int64]], object], repeats: int) -> dict[str, float]:
+        """Wall/CPU times (ms) and minor page faults per call over rotating batches."""
         wall, cpu = [], []
+        faults0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
         for r in range(repeats):
             rows = batches[r % len(batches)]
             t, c = time.perf_counter(), time.process_time()
             fn(rows)
             wall.append(time.perf_counter() - t)
             cpu.append(time.process_time() - c)
-        return statistics.median(wall) * 1e3, statistics.median(cpu) * 1e3
+        faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults0
+        return {
+            "med": statistics.median(wall) * 1e3,
+            "p10": float(np.percentile(wall, 10)) * 1e3,
+            "cpu": statistics.median(cpu) * 1e3,
+            "faults": faults / repeats,
+        }
 
-    fast_ms, fast_cpu = timed(run_fast, args.repeats)
-    naive_ms, naive_cpu = timed(run_naive, args.naive_repeats)
+    fast = timed(run_fast, args.repeats)
+    naive = timed(run_naive, args.naive_repeats)
     beams = args.sensors * spec.samples
-    tick_budget = 1e3 / 30
-    print(f"cast : {fast_ms:7.2f} ms wall / {fast_cpu:6.2f} ms CPU per batch of {args.sensors}, "
-          f"{beams / fast_ms * 1e3 / 1e6:.2f} M beams/s, {fast_ms / tick_budget * 100:.0f}% of a "
-          f"30 Hz tick")
-    print(f"naive: {naive_ms:7.2f} ms wall / {naive_cpu:6.2f} ms CPU per batch, "
-          f"{beams / naive_ms * 1e3 / 1e6:.2f} M beams/s")
-    print(f"speed-up vs naive: {naive_ms / fast_ms:.1f}x wall, {naive_cpu / fast_cpu:.1f}x CPU")
+    tick_ms = 1e3 / 30
+    print(f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} CPUs (timings are wall clock)")
+    print(
+        f"cast : median {fast['med']:6.2f} ms (p10 {fast['p10']:.2f}, CPU {fast['cpu']:.2f}) per batch of "
+        f"{args.sensors}; {beams / fast['med'] * 1e3 / 1e6:.2f} M beams/s; {fast['med'] / tick_ms:.0%} of a "
+        f"30 Hz tick; {fast['faults']:.0f} page faults/call"
+    )
+    print(
+        f"naive: median {naive['med']:6.2f} ms (CPU {naive['cpu']:.2f}) per batch; "
+        f"{beams / naive['med'] * 1e3 / 1e6:.2f} M beams/s"
+    )
+    print(f"speed-up vs naive: {naive['med'] / fast['med']:.1f}x")
 
     if args.profile:
         prof = cProfile.Profile()
