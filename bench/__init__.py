@@ -1,0 +1,1 @@
+"""Benchmarks of fleetsim that anyone can run: ``python -m bench.fleet_bench --help``."""

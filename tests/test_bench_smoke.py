@@ -1,0 +1,80 @@
+"""The fleet benchmark runs end to end and writes its outputs (numbers are not checked here:
+they belong in the benchmark's report, not in assertions)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+MEASURED = (
+    "rtf",
+    "rtf_median",
+    "odom_per_s",
+    "odom_expected_per_s",
+    "odom_fraction",
+    "scan_per_s",
+    "scan_expected_per_s",
+    "scan_fraction",
+    "beams_per_s",
+    "daemon_cpu_pct",
+)
+
+
+@pytest.mark.slow
+def test_quick_benchmark_writes_every_output(tmp_path: Path) -> None:
+    out = tmp_path / "bench-out"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bench.fleet_bench",
+            "--quick",
+            "--sizes",
+            "1",
+            "10",
+            "--duration",
+            "2",
+            "--latency-reps",
+            "3",
+            "--extra-spawns",
+            "5",
+            "--out",
+            str(out),
+        ],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=100,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "machine:" in proc.stdout and "command:" in proc.stdout
+
+    res = json.loads((out / "results.json").read_text())
+    runs = {(r["n"], r["mode"]): r for r in res["runs"]}
+    assert set(runs) == {(1, "rtf1"), (10, "rtf1"), (10, "rtf0")}
+    for key, run in runs.items():
+        assert run["status"] == "ok", (key, run["error"])
+        assert run["spawn"]["spawned"] == key[0]
+        for name in MEASURED:
+            assert isinstance(run["measure"][name], (int, float)), (key, name)
+        assert run["memory"]["rss_mb"] > 0
+    for n in (1, 10):
+        run = runs[(n, "rtf1")]
+        assert run["latency"]["p50_s"] is not None
+        assert run["spawn_single"]["spawn_p99_s"] is not None
+    assert res["machine"]["cores"] and res["machine"]["zenoh"]
+    assert len(res["targets"]) == 5
+
+    md = (out / "results.md").read_text()
+    for row in ("| 1 | 1 | ", "| 10 | 1 | ", "| 10 | max (0) | ", "| 1 | 1/1, ", "| 10 | 10/10, "):
+        assert row in md, row
+    png = (out / "scaling.png").read_bytes()
+    assert png.startswith(b"\x89PNG") and len(png) > 10_000
