@@ -183,6 +183,10 @@ def spawn_parser(prog: str) -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     top, cmds = build_parser()
+    # Options may come before the command too (`fleet -e tcp/host:7447 list`): move them after it.
+    first = next((i for i, a in enumerate(argv) if a in cmds and (i == 0 or not _takes_value(argv[i - 1]))), None)
+    if first:
+        argv = [argv[first], *argv[first + 1 :], *argv[:first]]
     if not argv or argv[0] not in cmds:
         top.parse_args(argv)  # prints help or a usage error and exits
         top.print_help(sys.stderr)  # no command at all
@@ -190,6 +194,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = cmds[argv[0]]
     args = parser.parse_intermixed_args(argv[1:])
     return run(argv[0], args, parser)
+
+
+_VALUE_FLAGS = frozenset(
+    {"-e", "--connect", "-l", "--listen", "-m", "--mode", "-c", "--config", "--cfg", "--prefix", "--timeout"}
+)
+
+
+def _takes_value(arg: str) -> bool:
+    """Whether ``arg`` is a global flag whose value follows it (so the next word is no command)."""
+    return arg in _VALUE_FLAGS
 
 
 def spawn_main(argv: Sequence[str] | None = None) -> int:
