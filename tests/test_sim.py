@@ -91,8 +91,9 @@ def test_robots_collide_instead_of_overlapping() -> None:
         return Polygon([(x + px * c - py * s, y + px * s + py * c) for px, py in BURGER.outline])
 
     pa, pb = poly(sim.state(a)), poly(sim.state(b))
-    # touching, at most a few millimetres deep across the 0.14 m chassis face
-    assert pa.intersection(pb).area / 0.14 < 0.003
+    # touching: each robot pushing at full speed sinks ~2 mm at most (as into a wall), so the
+    # combined depth across the 0.14 m chassis faces stays within 4 mm
+    assert pa.intersection(pb).area / 0.14 < 0.004
 
 
 def test_scans_see_other_robots_not_themselves() -> None:
