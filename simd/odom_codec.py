@@ -64,6 +64,10 @@ class OdometryEncoder:
         self._templates.pop(ns, None)
 
     def _relayout(self, namespaces: list[str]) -> None:
+        n_old = len(self._layout)
+        if n_old and namespaces[:n_old] == self._layout:
+            self._append(namespaces[n_old:])  # spawns append: no need to rebuild the rest
+            return
         tails, heads, starts = [], [], []
         pos = 0
         for ns in namespaces:
@@ -82,6 +86,23 @@ class OdometryEncoder:
         base = np.asarray(starts, dtype=np.int64)[:, None] + offs.astype(np.int64)
         self._index = base[:, :, None] + np.arange(8, dtype=np.int64)[None, None, :]
         self._layout = list(namespaces)
+
+    def _append(self, new: list[str]) -> None:
+        pos = len(self._buffer)
+        tails, rows = [], []
+        for ns in new:
+            t = self._templates.get(ns)
+            if t is None:
+                t = self._templates[ns] = _Template(ns)
+            tails.append(t.tail)
+            self._heads.append(t.head)
+            self._bounds.append((pos, pos + len(t.tail)))
+            rows.append(pos + t.offsets)
+            pos += len(t.tail)
+        self._buffer = np.concatenate([self._buffer, np.frombuffer(b"".join(tails), dtype=np.uint8)])
+        index = np.stack(rows)[:, :, None] + np.arange(8, dtype=np.int64)[None, None, :]
+        self._index = np.concatenate([self._index, index])
+        self._layout.extend(new)
 
     def encode(
         self, namespaces: list[str], time: float, x: F64, y: F64, yaw: F64, vx: F64, vy: F64, wz: F64

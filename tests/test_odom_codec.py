@@ -39,3 +39,13 @@ def test_layout_follows_spawns_and_deletes() -> None:
     assert [d.header.frame_id for d in decoded] == ["b/odom", "c/odom"]
     assert [d.pose.pose.position.x for d in decoded] == [1.0, 2.0]
     assert enc.encode([], 3.0, *(np.zeros(0) for _ in range(6))) == []
+
+
+def test_appending_robots_matches_a_full_layout() -> None:
+    grown, fresh = OdometryEncoder(), OdometryEncoder()
+    names = [f"r{i}" for i in range(5)]
+    z = np.zeros(5)
+    grown.encode(names[:2], 0.5, z[:2], z[:2], z[:2], z[:2], z[:2], z[:2])
+    grown.encode(names[:3], 0.6, z[:3], z[:3], z[:3], z[:3], z[:3], z[:3])
+    vals = [np.arange(5.0) + k for k in range(6)]
+    assert grown.encode(names, 0.7, *vals) == fresh.encode(names, 0.7, *vals)
