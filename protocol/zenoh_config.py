@@ -43,7 +43,9 @@ class ZenohOptions:
         """The endpoints in use, for messages."""
         return ", ".join(self.connect or self.listen) or "(from the config file)"
 
-    def build(self) -> zenoh.Config:
+    def build(self, defaults: dict[str, str] | None = None) -> zenoh.Config:
+        """The session config: file, then flags; ``defaults`` (key -> JSON5) apply only
+        without a config file, and ``--cfg`` overrides them."""
         import zenoh
 
         conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
@@ -57,6 +59,9 @@ class ZenohOptions:
         if not self.config_file or self.multicast_scouting:
             enabled = "true" if self.multicast_scouting else "false"
             conf.insert_json5("scouting/multicast/enabled", enabled)
+        if not self.config_file:
+            for key, value in (defaults or {}).items():
+                conf.insert_json5(key, value)
         for item in self.cfg:
             key, sep, value = item.partition(":")
             if not sep:

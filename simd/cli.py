@@ -13,6 +13,11 @@ from protocol.zenoh_config import add_zenoh_args, options_from_args
 
 log = logging.getLogger("simd")
 
+#: A tick puts one odometry per robot and a batch of scans back to back (~1.2 MB at 1 000
+#: robots). zenoh's default data queue (2 batches of 64 kB) overflows on such bursts and drops;
+#: 16 batches (the maximum) absorb them (measured: scans delivered 92% -> 100% at 100 robots).
+TRANSPORT_DEFAULTS = {"transport/link/tx/queue/size/data": "16"}
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -104,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     opts = options_from_args(args, server=True)
     try:
-        conf = opts.build()
+        conf = opts.build(defaults=TRANSPORT_DEFAULTS)
     except (ValueError, zenoh.ZError) as e:
         return fail(f"bad zenoh configuration: {_short(e)}")
     try:

@@ -27,28 +27,13 @@ import numpy.typing as npt
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from simd.lidar import LidarSpec, StaticScene, cast
+from simd.models import BURGER as BURGER_MODEL
 
 F64 = npt.NDArray[np.float64]
 
 ARENA = 60.0
-# burger footprint: chassis x in [-0.102, 0.038], |y| <= 0.070, wheels x in [-0.033, 0.033],
-# |y| in [0.062, 0.089]; the union's outline has 12 vertices
-BURGER = np.array(
-    [
-        (0.038, -0.070),
-        (0.038, 0.070),
-        (0.033, 0.070),
-        (0.033, 0.089),
-        (-0.033, 0.089),
-        (-0.033, 0.070),
-        (-0.102, 0.070),
-        (-0.102, -0.070),
-        (-0.033, -0.070),
-        (-0.033, -0.089),
-        (0.033, -0.089),
-        (0.033, -0.070),
-    ]
-)
+# the burger footprint outline (12 vertices), as the simulator uses it
+BURGER = BURGER_MODEL.outline
 LIDAR_OFFSET = (-0.032, 0.0)
 
 

@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from shapely.geometry import MultiLineString, Point
 
 from simd.lidar import LidarSpec, StaticScene, cast
+from simd.models import BURGER as BURGER_MODEL
 
 F64 = npt.NDArray[np.float64]
 TOL = 1e-4  # m
@@ -29,22 +30,8 @@ GRAZE_DELTA = 1e-7  # m: perturbation that decides beams grazing an end, a tange
 SPEC = LidarSpec()
 
 # burger footprint outline: union of the chassis box and the two wheel boxes, 12 vertices
-BURGER = np.array(
-    [
-        (0.038, -0.070),
-        (0.038, 0.070),
-        (0.033, 0.070),
-        (0.033, 0.089),
-        (-0.033, 0.089),
-        (-0.033, 0.070),
-        (-0.102, 0.070),
-        (-0.102, -0.070),
-        (-0.033, -0.070),
-        (-0.033, -0.089),
-        (0.033, -0.089),
-        (0.033, -0.070),
-    ]
-)
+# the burger footprint outline (12 vertices), as the simulator uses it
+BURGER = BURGER_MODEL.outline
 
 
 def ring(points: F64) -> F64:
