@@ -108,6 +108,7 @@ class Daemon:
                 self._serve(req)
                 continue
             if self.paused:
+                self.bridge.poll_commands()  # keep the ring drained while time stands still
                 next_tick = time.monotonic()
                 continue
             if time.monotonic() >= next_tick:
@@ -140,6 +141,7 @@ class Daemon:
     # -- requests -------------------------------------------------------------------------
 
     def _serve(self, req: Request) -> None:
+        self.bridge.poll_commands()  # so that the clock's dropped count is current
         key = self.bridge.control_keys[req.kind]
         try:
             result = getattr(self, f"_on_{req.kind}")(req)

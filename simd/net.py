@@ -1,8 +1,10 @@
 """The network layer: maps the core to the wire protocol over one zenoh session.
 
-Zenoh callbacks never touch the simulation. cmd_vel callbacks decode the Twist (pure
-msgspec) and store the newest per namespace in a dict that the simulation thread swaps
-out at the top of each tick. Control queries are put on a bounded queue that the
+Zenoh callbacks never touch the simulation. cmd_vel samples wait in a zenoh ring channel
+that the simulation thread drains between ticks, keeping the newest command per namespace:
+no Python callback thread wakes up per command (at 1 000 robots driven at 10 Hz that thread
+fought the simulation for the GIL 10 000 times a second), and a flood only overwrites the
+oldest samples, never blocking zenoh. Control queries are put on a bounded queue that the
 simulation thread drains; it replies from there. A flood beyond the queue's bound is
 answered ``busy`` from the callback without reaching the simulation.
 """
@@ -12,7 +14,6 @@ from __future__ import annotations
 import logging
 import math
 import queue
-import threading
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,6 +29,8 @@ log = logging.getLogger(__name__)
 
 #: Control requests waiting for the simulation thread beyond this are refused as busy.
 MAX_PENDING_REQUESTS = 4096
+#: cmd_vel samples buffered between two drains (a 30 Hz tick); beyond it the oldest go.
+CMD_VEL_RING = 65536
 
 CONTROL_KINDS = ("spawn", "delete", "robots", "world", "clock", "pause", "resume", "reset", "step")
 
@@ -83,7 +86,6 @@ class Bridge:
         self.keys = keys
         self.requests: queue.Queue[Request | None] = queue.Queue(MAX_PENDING_REQUESTS)
         self._commands: dict[str, tuple[float, float]] = {}
-        self._lock = threading.Lock()
         self.dropped_commands = 0
         self._twist = msgspec.msgpack.Decoder(Twist)
         self._odom_pub: dict[str, zenoh.Publisher] = {}
@@ -101,7 +103,8 @@ class Bridge:
         self.control_keys = control_keys
         for kind, key in control_keys.items():
             self._entities.append(session.declare_queryable(key, self._make_enqueue(kind)))
-        self._entities.append(session.declare_subscriber(f"{k.prefix}/*/cmd_vel", self._on_cmd_vel))
+        self._cmd_vel = session.declare_subscriber(f"{k.prefix}/*/cmd_vel", zenoh.handlers.RingChannel(CMD_VEL_RING))
+        self._entities.append(self._cmd_vel)
         self._entities.append(
             session.declare_queryable(f"{k.prefix}/*/odom", self._latest_answerer(self.latest_odom, "odom"))
         )
@@ -132,34 +135,34 @@ class Bridge:
 
         return enqueue
 
-    def _on_cmd_vel(self, sample: zenoh.Sample) -> None:
-        ns = self.keys.namespace_of(str(sample.key_expr))
-        if ns is None or "*" in ns or "$" in ns:
-            self._drop()
-            return
-        payload = sample.payload.to_bytes()
-        try:
-            # JSON from people and their tools; MessagePack (the fast path) from programs
-            json_like = payload[:1] and payload[0] in b" \t\r\n{"
-            twist = decode(payload, Twist) if json_like else self._twist.decode(payload)
-            v, w = float(twist.linear.x), float(twist.angular.z)
-        except (FleetError, msgspec.DecodeError, TypeError, ValueError):
-            self._drop()
-            return
-        if not (math.isfinite(v) and math.isfinite(w)):
-            self._drop()
-            return
-        with self._lock:
-            self._commands[ns] = (v, w)
-
-    def _drop(self) -> None:
-        with self._lock:
-            self.dropped_commands += 1
+    def poll_commands(self) -> None:
+        """Move waiting cmd_vel samples into the newest-per-namespace table (simulation thread)."""
+        sub = self._cmd_vel
+        commands = self._commands
+        decoder = self._twist
+        while (sample := sub.try_recv()) is not None:
+            ns = self.keys.namespace_of(str(sample.key_expr))
+            if ns is None or "*" in ns or "$" in ns:
+                self.dropped_commands += 1
+                continue
+            payload = sample.payload.to_bytes()
+            try:
+                # JSON from people and their tools; MessagePack (the fast path) from programs
+                json_like = payload[:1] and payload[0] in b" \t\r\n{"
+                twist = decode(payload, Twist) if json_like else decoder.decode(payload)
+                v, w = float(twist.linear.x), float(twist.angular.z)
+            except (FleetError, msgspec.DecodeError, TypeError, ValueError):
+                self.dropped_commands += 1
+                continue
+            if not (math.isfinite(v) and math.isfinite(w)):
+                self.dropped_commands += 1
+                continue
+            commands[ns] = (v, w)
 
     def take_commands(self) -> dict[str, tuple[float, float]]:
         """The newest command per namespace since the last call (simulation thread)."""
-        with self._lock:
-            cmds, self._commands = self._commands, {}
+        self.poll_commands()
+        cmds, self._commands = self._commands, {}
         return cmds
 
     def _latest_answerer(self, cache: dict[str, bytes], topic: str) -> Any:
