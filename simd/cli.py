@@ -16,7 +16,10 @@ log = logging.getLogger("simd")
 #: A tick puts one odometry per robot and a batch of scans back to back (~1.2 MB at 1 000
 #: robots). zenoh's default data queue (2 batches of 64 kB) overflows on such bursts and drops;
 #: 16 batches (the maximum) absorb them (measured: scans delivered 92% -> 100% at 100 robots).
-TRANSPORT_DEFAULTS = {"transport/link/tx/queue/size/data": "16"}
+TRANSPORT_DEFAULTS = {
+    "transport/link/tx/queue/size/data": "16",
+    "transport/link/tx/queue/size/data_low": "16",  # scans (see net.Bridge.add_robot)
+}
 
 
 def build_parser() -> argparse.ArgumentParser:

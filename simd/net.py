@@ -182,7 +182,12 @@ class Bridge:
     def add_robot(self, ns: str) -> None:
         k = self.keys
         self._odom_pub[ns] = self.session.declare_publisher(k.odom(ns), encoding="application/msgpack")
-        self._scan_pub[ns] = self.session.declare_publisher(k.scan(ns), encoding="application/msgpack")
+        # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a tick's
+        # scans and its odometry each get a full queue, and odometry goes first when a link is
+        # congested (it is what closes a control loop).
+        self._scan_pub[ns] = self.session.declare_publisher(
+            k.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+        )
         self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
 
     def remove_robot(self, ns: str) -> None:
