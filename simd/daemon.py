@@ -8,13 +8,16 @@ lockstep mode time advances only through ``P/sim/step``.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import logging
 import math
 import queue
 import threading
 import time
 
-from protocol.codec import decode
+import numpy as np
+
+from protocol.codec import decode, encode
 from protocol.control import (
     Clock,
     DeleteRequest,
@@ -41,6 +44,24 @@ CLOCK_EVERY = 3
 MAX_LAG_TICKS = 5
 
 
+def _without(out: TickOutput, gone: set[str]) -> TickOutput:
+    """A tick's output without the robots in ``gone`` (deleted after it was computed)."""
+    keep = np.asarray([ns not in gone for ns in out.namespaces], dtype=bool)
+    keep_scan = np.asarray([ns not in gone for ns in out.scan_namespaces], dtype=bool)
+    return dataclasses.replace(
+        out,
+        namespaces=[ns for ns in out.namespaces if ns not in gone],
+        x=out.x[keep],
+        y=out.y[keep],
+        yaw=out.yaw[keep],
+        linear_x=out.linear_x[keep],
+        linear_y=out.linear_y[keep],
+        angular_z=out.angular_z[keep],
+        scan_namespaces=[ns for ns in out.scan_namespaces if ns not in gone],
+        scans=out.scans[keep_scan],
+    )
+
+
 class Daemon:
     def __init__(
         self,
@@ -62,6 +83,7 @@ class Daemon:
         self._rtf_window: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
         self._world_info = convert.world_info(sim.world)
         self._odom = OdometryEncoder()
+        self._deleted: set[str] = set()  # namespaces deleted while a tick is half done
 
     # -- status ---------------------------------------------------------------------------
 
@@ -112,17 +134,29 @@ class Daemon:
                 next_tick = time.monotonic()
                 continue
             if time.monotonic() >= next_tick:
-                self.tick()
+                self.tick(serve_between=True)
                 next_tick += period
                 now = time.monotonic()
                 if now - next_tick > MAX_LAG_TICKS * period:
                     next_tick = now  # fell behind: run slower than real time rather than burst
 
-    def tick(self) -> TickOutput:
-        """Apply commands, step once, publish the tick's messages."""
+    def tick(self, serve_between: bool = False) -> TickOutput:
+        """Apply commands, step once, publish the tick's messages.
+
+        With ``serve_between`` the requests that arrived during the step (the long part of a
+        tick) are served before publishing, so a spawn waits at most for that part and not for
+        the whole tick. A robot deleted there is left out of this tick's messages; a reset
+        there makes this tick's measurements stale, so they are not published.
+        """
         sim = self.sim
         sim.command_many(self.bridge.take_commands())
         out = sim.step()
+        if serve_between and not self.bridge.requests.empty():
+            deleted = self._serve_pending()
+            if sim.tick != out.tick:
+                return out
+            if deleted:
+                out = _without(out, deleted)
         odom = self._odom.encode(
             out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
         )
@@ -133,9 +167,22 @@ class Daemon:
             self._publish_clock()
         return out
 
-    def _publish_clock(self) -> None:
-        from protocol.codec import encode
+    def _serve_pending(self) -> set[str]:
+        """Serve every queued request; return the namespaces deleted meanwhile."""
+        self._deleted = set()
+        while True:
+            try:
+                req = self.bridge.requests.get_nowait()
+            except queue.Empty:
+                break
+            if req is None:  # stop() woke us
+                self.stop_event.set()
+                break
+            self._serve(req)
+        deleted, self._deleted = self._deleted, set()
+        return deleted
 
+    def _publish_clock(self) -> None:
         self.bridge.clock_pub.put(encode(self.clock()))
 
     # -- requests -------------------------------------------------------------------------
@@ -171,8 +218,6 @@ class Daemon:
             0.0,
             0.0,
         )
-        from protocol.codec import encode
-
         data = encode(first)
         self.bridge.publish([robot.namespace], [data], [], [])
         log.info("spawned %s (%s) at (%.3f, %.3f, %.3f) ns=%s", robot.name, robot.model.name,
@@ -184,6 +229,7 @@ class Daemon:
         last = self.sim.delete(d.name)
         self.bridge.remove_robot(last.namespace)
         self._odom.forget(last.namespace)
+        self._deleted.add(last.namespace)
         log.info("deleted %s", last.name)
         return convert.robot_record(last, self.keys)
 

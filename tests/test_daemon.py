@@ -288,3 +288,40 @@ def test_json_mirrors_flow_only_while_subscribed(daemon: Daemon) -> None:
         sc = json.loads(scan.samples[-1][1])
         assert len(sc["ranges"]) == 360
         assert all(r is None or 0.12 <= r <= 3.5 for r in sc["ranges"])
+
+
+def test_a_tick_without_deleted_robots() -> None:
+    from simd.daemon import _without
+    from simd.sim import TickOutput
+
+    a = np.arange(3.0)
+    out = TickOutput(
+        tick=1, time=1 / 30, namespaces=["a", "b", "c"], x=a, y=a + 1, yaw=a + 2,
+        linear_x=a, linear_y=a, angular_z=a, scan_namespaces=["b", "c"],
+        scans=np.zeros((2, 360), dtype=np.float32) + np.array([[1.0], [2.0]], dtype=np.float32),
+    )  # fmt: skip
+    kept = _without(out, {"b"})
+    assert kept.namespaces == ["a", "c"] and kept.x.tolist() == [0.0, 2.0] and kept.y.tolist() == [1.0, 3.0]
+    assert kept.scan_namespaces == ["c"] and kept.scans[:, 0].tolist() == [2.0]
+
+
+def test_spawn_and_delete_churn_while_running(daemon_factory: Callable[..., Daemon]) -> None:
+    d = daemon_factory("--world", "empty")
+    c = d.client()
+    for i in range(40):  # a fleet whose ticks take long enough for requests to land mid-tick
+        c.spawn(f"r{i}", x=(i % 8) * 1.0 - 4, y=(i // 8) * 1.0 - 4)
+    with raw_session(d.endpoint) as s:
+        odom = Collector(s, "fleet/*/odom")
+        for k in range(60):
+            c.spawn("churn", x=5.0, y=5.0)
+            c.delete("churn")
+            if k % 10 == 0:
+                c.delete(f"r{k // 10}")
+        time.sleep(0.3)
+        odom.clear()
+        time.sleep(0.5)
+        seen = {k.split("/")[1] for k in odom.key_set()}
+    assert "churn" not in seen and not ({f"r{i}" for i in range(6)} & seen)
+    assert seen == {f"r{i}" for i in range(6, 40)}
+    assert d.alive()
+    assert "failed" not in d.log() and "Traceback" not in d.log()

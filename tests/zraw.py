@@ -63,7 +63,7 @@ class Collector:
         with self.lock:
             return len(self.samples)
 
-    def keys(self) -> set[str]:
+    def key_set(self) -> set[str]:
         with self.lock:
             return {k for k, _ in self.samples}
 
