@@ -68,6 +68,9 @@ def fail(message: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    # zenoh's query callbacks need the GIL, which the simulation thread would otherwise hold
+    # for up to 5 ms at a time; 1 ms keeps spawn replies prompt at the cost of a few switches.
+    sys.setswitchinterval(0.001)
     if hasattr(sys.stdout, "reconfigure"):
         sys.stdout.reconfigure(line_buffering=True)
     logging.basicConfig(
