@@ -25,18 +25,13 @@ import msgspec
 import msgspec.yaml
 import yaml
 
+from protocol.files import FileFormatError, yaml_syntax_problem
+
 FLEETS_DIR = Path(__file__).parent / "fleets"
 
 
-class FleetFileError(Exception):
+class FleetFileError(FileFormatError):
     """A fleet file that cannot be used: where (file, location, line) and why."""
-
-    def __init__(self, source: str, reason: str, location: str | None = None) -> None:
-        self.source = source
-        self.location = location
-        self.reason = reason
-        where = f"{source}: {location}" if location else source
-        super().__init__(f"{where}: {reason}")
 
 
 class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
@@ -152,14 +147,8 @@ def _line_of(data: bytes, location: str) -> int | None:
 
 
 def _yaml_error(source: str, exc: msgspec.DecodeError) -> FleetFileError:
-    # msgspec re-raises PyYAML's error as text; the original, with its mark, is the context.
-    original = exc.__context__
-    if isinstance(original, yaml.MarkedYAMLError) and original.problem_mark is not None:
-        mark = original.problem_mark
-        problem = original.problem or "malformed YAML"
-        where = f"line {mark.line + 1}, column {mark.column + 1}"
-        return FleetFileError(source, f"YAML syntax error: {problem}", where)
-    return FleetFileError(source, "YAML syntax error: " + " ".join(str(exc).split()))
+    reason, where = yaml_syntax_problem(exc)
+    return FleetFileError(source, reason, where)
 
 
 def _check_unique(source: str, robots: list[FleetRobot], data: bytes) -> None:

@@ -23,9 +23,9 @@ import msgspec
 import msgspec.yaml
 import numpy as np
 import numpy.typing as npt
-import yaml
 
 import worlds
+from protocol.files import FileFormatError, yaml_syntax_problem
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -40,19 +40,8 @@ PositiveFloat = Annotated[float, msgspec.Meta(gt=0.0)]
 NonEmptyStr = Annotated[str, msgspec.Meta(min_length=1)]
 
 
-class WorldFileError(Exception):
-    """A world that cannot be used, with where (file and location) and why.
-
-    The parts stay available as attributes so the network layer can map the error to a
-    structured reply without parsing the message.
-    """
-
-    def __init__(self, source: str, reason: str, location: str | None = None) -> None:
-        self.source = source
-        self.location = location
-        self.reason = reason
-        where = f"{source}: {location}" if location else source
-        super().__init__(f"{where}: {reason}")
+class WorldFileError(FileFormatError):
+    """A world that cannot be used, with where (file and location) and why."""
 
 
 # --- schema ---------------------------------------------------------------------------------
@@ -75,9 +64,7 @@ class Spawn(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=Tru
     yaw: float = 0.0
 
 
-class _Obstacle(
-    msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True, tag_field="type"
-):
+class _Obstacle(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True, tag_field="type"):
     name: NonEmptyStr | None = None
 
 
@@ -230,17 +217,8 @@ def _validation_error(source: str, exc: msgspec.ValidationError) -> WorldFileErr
 
 
 def _yaml_error(source: str, exc: msgspec.DecodeError) -> WorldFileError:
-    # msgspec.yaml re-raises PyYAML's error as a plain string; the original, with its line and
-    # column, is still reachable as the suppressed context.
-    original = exc.__context__
-    if isinstance(original, yaml.MarkedYAMLError) and original.problem_mark is not None:
-        mark = original.problem_mark
-        problem = original.problem or "malformed YAML"
-        if original.context:
-            problem = f"{problem} ({original.context})"
-        where = f"line {mark.line + 1}, column {mark.column + 1}"
-        return WorldFileError(source, f"YAML syntax error: {problem}", where)
-    return WorldFileError(source, "YAML syntax error: " + " ".join(str(exc).split()))
+    reason, where = yaml_syntax_problem(exc)
+    return WorldFileError(source, reason, where)
 
 
 # --- semantic checks and conversion ---------------------------------------------------------
@@ -293,9 +271,7 @@ def _convex_ccw(points: Sequence[tuple[float, float]]) -> FloatArray:
     flat = np.flatnonzero(np.abs(sin_turn) <= _MIN_TURN_SIN)
     if flat.size:
         i = (int(flat[0]) + 1) % k
-        raise _Invalid(
-            f"point {i} is collinear with its neighbours (degenerate polygon or redundant point)"
-        )
+        raise _Invalid(f"point {i} is collinear with its neighbours (degenerate polygon or redundant point)")
     if not (np.all(cross > 0) or np.all(cross < 0)):
         sign = np.sign(cross)
         i = (int(np.flatnonzero(sign != sign[0])[0]) + 1) % k
