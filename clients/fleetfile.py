@@ -16,8 +16,6 @@ Fleets shipped with fleetsim live in ``clients/fleets/`` and are found by bare n
 
 from __future__ import annotations
 
-import difflib
-import os
 import re
 from pathlib import Path
 
@@ -25,7 +23,7 @@ import msgspec
 import msgspec.yaml
 import yaml
 
-from protocol.files import FileFormatError, yaml_syntax_problem
+from protocol.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
 
 FLEETS_DIR = Path(__file__).parent / "fleets"
 
@@ -49,21 +47,16 @@ class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
         return self.namespace or self.name
 
 
+SHIPPED_FLEETS = ShippedFiles("fleet", FLEETS_DIR, FleetFileError)
+
+
 def list_fleets() -> list[str]:
-    return sorted(p.stem for p in FLEETS_DIR.glob("*.yaml"))
+    return SHIPPED_FLEETS.names()
 
 
 def load_fleet(name_or_path: str) -> list[FleetRobot]:
     """Load a shipped fleet by bare name or any fleet file by path; raise FleetFileError."""
-    path, source = _resolve(name_or_path)
-    try:
-        text = path.read_bytes()
-    except FileNotFoundError:
-        raise FleetFileError(source, "file not found" + _shipped_hint(path)) from None
-    except IsADirectoryError:
-        raise FleetFileError(source, "is a directory, not a fleet file") from None
-    except OSError as exc:
-        raise FleetFileError(source, f"cannot read file: {exc.strerror or exc}") from None
+    text, source = SHIPPED_FLEETS.read(name_or_path)
     if not text.strip():
         raise FleetFileError(source, "the file is empty; a fleet file is a YAML list of robots")
     try:
@@ -78,53 +71,20 @@ def load_fleet(name_or_path: str) -> list[FleetRobot]:
     return robots
 
 
-# --- resolution -------------------------------------------------------------------------------
-
-
-def _is_bare_name(text: str) -> bool:
-    separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
-    return not any(s in text for s in separators) and not text.endswith((".yaml", ".yml"))
-
-
-def _resolve(name_or_path: str) -> tuple[Path, str]:
-    if not _is_bare_name(name_or_path):
-        return Path(name_or_path), name_or_path
-    available = list_fleets()
-    if name_or_path not in available:
-        close = difflib.get_close_matches(name_or_path, available, n=1)
-        hint = f"; did you mean {close[0]!r}?" if close else "."
-        raise FleetFileError(
-            name_or_path,
-            f"unknown fleet{hint} Shipped fleets: {', '.join(available) or '(none)'}. "
-            "A file path must contain '/' or end in .yaml",
-        )
-    path = FLEETS_DIR / f"{name_or_path}.yaml"
-    return path, str(path)
-
-
-def _shipped_hint(path: Path) -> str:
-    if path.suffix in (".yaml", ".yml") and path.stem in list_fleets():
-        return f" (for the shipped fleet, pass the bare name {path.stem!r})"
-    return ""
-
-
 # --- error wording ----------------------------------------------------------------------------
 
-_AT_LOCATION = re.compile(r"^(?P<reason>.*) - at `(?P<location>\$[^`]*)`$", re.DOTALL)
 _PATH_TOKEN = re.compile(r"\[(\d+)\]|\.([A-Za-z_][A-Za-z0-9_]*)")
 
 
 def _validation_error(source: str, text: str, data: bytes) -> FleetFileError:
-    match = _AT_LOCATION.match(text)
-    if match is None:
-        reason = text
+    reason, location = split_location(text)
+    if location is None:
         if text == "Expected `array`, got `object`":
             reason += " (a fleet file is a YAML list of robots: '- {name: ..., x: ..., y: ...}')"
         return FleetFileError(source, reason, "$")
-    location = match["location"]
     line = _line_of(data, location)
     where = f"{location} (line {line})" if line else location
-    return FleetFileError(source, match["reason"], where)
+    return FleetFileError(source, reason, where)
 
 
 def _line_of(data: bytes, location: str) -> int | None:

@@ -6,6 +6,12 @@ msgspec location or a line and column) and why, the same way.
 
 from __future__ import annotations
 
+import difflib
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
 import msgspec
 import yaml
 
@@ -36,3 +42,67 @@ def yaml_syntax_problem(exc: msgspec.DecodeError) -> tuple[str, str | None]:
             problem = f"{problem} ({original.context})"
         return f"YAML syntax error: {problem}", f"line {mark.line + 1}, column {mark.column + 1}"
     return "YAML syntax error: " + " ".join(str(exc).split()), None
+
+
+#: msgspec's validation messages end in `` - at `$.path` ``.
+AT_LOCATION = re.compile(r"^(?P<reason>.*) - at `(?P<location>\$[^`]*)`$", re.DOTALL)
+
+
+def split_location(message: str) -> tuple[str, str | None]:
+    """(reason, ``$.location``) of a msgspec validation message; the location may be absent."""
+    match = AT_LOCATION.match(message)
+    return (match["reason"], match["location"]) if match else (message, None)
+
+
+@dataclass(frozen=True)
+class ShippedFiles:
+    """YAML files shipped in a package folder and found by bare name, or any file by path.
+
+    A bare name has no path separator and no ``.yaml``/``.yml`` suffix; anything else is a path,
+    so a local file never shadows a shipped one by accident.
+    """
+
+    kind: str  # "world", "fleet": used in messages
+    directory: Path
+    error: type[FileFormatError]
+
+    def names(self) -> list[str]:
+        return sorted(p.stem for p in self.directory.glob("*.yaml"))
+
+    def read(self, name_or_path: str | os.PathLike[str]) -> tuple[bytes, str]:
+        """The file's bytes and the source to name in messages; raises ``self.error``."""
+        path, source = self._resolve(name_or_path)
+        try:
+            return path.read_bytes(), source
+        except FileNotFoundError:
+            raise self.error(source, "file not found" + self._shipped_hint(path)) from None
+        except IsADirectoryError:
+            raise self.error(source, f"is a directory, not a {self.kind} file") from None
+        except OSError as exc:
+            raise self.error(source, f"cannot read file: {exc.strerror or exc}") from None
+
+    def _resolve(self, name_or_path: str | os.PathLike[str]) -> tuple[Path, str]:
+        if not (isinstance(name_or_path, str) and _is_bare_name(name_or_path)):
+            return Path(name_or_path), os.fspath(name_or_path)
+        available = self.names()
+        if name_or_path not in available:
+            close = difflib.get_close_matches(name_or_path, available, n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else "."
+            listing = ", ".join(available) or "(none)"
+            raise self.error(
+                name_or_path,
+                f"unknown {self.kind}{hint} Available {self.kind}s: {listing}. "
+                "A file path must contain '/' or end in .yaml",
+            )
+        path = self.directory / f"{name_or_path}.yaml"
+        return path, str(path)
+
+    def _shipped_hint(self, path: Path) -> str:
+        if path.suffix in (".yaml", ".yml") and path.stem in self.names():
+            return f" (for the shipped {self.kind}, pass the bare name {path.stem!r})"
+        return ""
+
+
+def _is_bare_name(text: str) -> bool:
+    separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
+    return not any(s in text for s in separators) and not text.endswith((".yaml", ".yml"))

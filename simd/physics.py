@@ -48,8 +48,12 @@ class Physics:
             s.friction = 0.0
         self.space.add(*shapes)
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
-        self._order_dirty = True
-        self._order_rids: npt.NDArray[np.int64] = np.zeros(0, dtype=np.int64)
+        self._order_dirty = True  # a robot was added or removed since the rows were computed
+        self._rows_cache: tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]] = (
+            np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=bool),
+        )
+        self._rows_n = 0
         self._n_iter = 0
 
     # -- robots -------------------------------------------------------------------------
@@ -119,29 +123,32 @@ class Physics:
 
     # -- batched state --------------------------------------------------------------------
 
-    def _refresh_order(self) -> None:
-        buf = pymunk.batch.Buffer()
-        pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.BODY_ID, buf)
-        ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
-        by_id = {b.id: rid for rid, b in self._bodies.items()}
-        self._order_rids = np.array([by_id.get(int(i), -1) for i in ids], dtype=np.int64)
-        self._n_iter = len(ids)
-        self._order_dirty = False
+    def _rows(self, rids: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+        """For each body in pymunk's iteration order, its row in the caller's arrays, and
+        which bodies are robots. Recomputed only after a robot is added or removed: the
+        caller's rows change only then too."""
+        if self._order_dirty or self._rows_n != len(rids):
+            buf = pymunk.batch.Buffer()
+            pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.BODY_ID, buf)
+            ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
+            row_of_rid = {int(rid): row for row, rid in enumerate(rids)}
+            row_of_body = {b.id: row_of_rid.get(rid, -1) for rid, b in self._bodies.items()}
+            rows = np.array([row_of_body.get(int(i), -1) for i in ids], dtype=np.int64)
+            self._rows_cache = (rows, rows >= 0)
+            self._rows_n = len(rids)
+            self._n_iter = len(ids)
+            self._order_dirty = False
+        return self._rows_cache
 
     def step(self, rids: npt.NDArray[np.int64], vx: F64, vy: F64, w: F64, dt: float) -> None:
         """Set each robot's world velocity (rows aligned with ``rids``) and advance ``dt``."""
-        if self._order_dirty:
-            self._refresh_order()
+        rows, ok = self._rows(rids)
         if self._n_iter:
-            # map iteration order -> row in the caller's arrays (-1 for non-robot bodies)
-            row_of = np.full(int(rids.max(initial=-1)) + 2, -1, dtype=np.int64)
-            row_of[rids] = np.arange(len(rids))
-            rows = np.where(self._order_rids >= 0, row_of[self._order_rids], -1)
             out = np.zeros((self._n_iter, 3), dtype=np.float64)
-            ok = rows >= 0
-            out[ok, 0] = vx[rows[ok]]
-            out[ok, 1] = vy[rows[ok]]
-            out[ok, 2] = w[rows[ok]]
+            r = rows[ok]
+            out[ok, 0] = vx[r]
+            out[ok, 1] = vy[r]
+            out[ok, 2] = w[r]
             buf = pymunk.batch.Buffer()
             buf.set_float_buf(out.ravel())
             pymunk.batch.set_space_bodies(self.space, _SET_FIELDS, buf)
@@ -157,16 +164,12 @@ class Physics:
         a = np.zeros(n)
         if not n:
             return x, y, a
-        if self._order_dirty:
-            self._refresh_order()
+        rows, ok = self._rows(rids)
         buf = pymunk.batch.Buffer()
         pymunk.batch.get_space_bodies(self.space, _GET_FIELDS, buf)
         data = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
-        row_of = np.full(int(rids.max()) + 2, -1, dtype=np.int64)
-        row_of[rids] = np.arange(n)
-        rows = np.where(self._order_rids >= 0, row_of[self._order_rids], -1)
-        ok = rows >= 0
-        x[rows[ok]] = data[ok, 0]
-        y[rows[ok]] = data[ok, 1]
-        a[rows[ok]] = data[ok, 2]
+        r = rows[ok]
+        x[r] = data[ok, 0]
+        y[r] = data[ok, 1]
+        a[r] = data[ok, 2]
         return x, y, a

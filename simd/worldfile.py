@@ -10,13 +10,10 @@ can go straight to the offending line.
 
 from __future__ import annotations
 
-import difflib
 import math
 import os
-import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Annotated
 
 import msgspec
@@ -25,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 import worlds
-from protocol.files import FileFormatError, yaml_syntax_problem
+from protocol.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -42,6 +39,9 @@ NonEmptyStr = Annotated[str, msgspec.Meta(min_length=1)]
 
 class WorldFileError(FileFormatError):
     """A world that cannot be used, with where (file and location) and why."""
+
+
+SHIPPED_WORLDS = ShippedFiles("world", worlds.WORLDS_DIR, WorldFileError)
 
 
 # --- schema ---------------------------------------------------------------------------------
@@ -146,15 +146,7 @@ def load_world(name_or_path: str | os.PathLike[str]) -> WorldGeometry:
     A bare name has no path separator and no ``.yaml``/``.yml`` suffix; anything else is a
     path, so a local file never shadows a shipped world by accident.
     """
-    path, source = _resolve(name_or_path)
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise WorldFileError(source, "file not found" + _shipped_hint(path)) from None
-    except IsADirectoryError:
-        raise WorldFileError(source, "is a directory, not a world file") from None
-    except OSError as exc:
-        raise WorldFileError(source, f"cannot read file: {exc.strerror or exc}") from exc
+    data, source = SHIPPED_WORLDS.read(name_or_path)
     try:
         world = msgspec.yaml.decode(data, type=WorldFile)
     except msgspec.ValidationError as exc:
@@ -176,44 +168,9 @@ def world_from_dict(data: Mapping[str, object], source: str = "<dict>") -> World
 # --- resolution and error wording -----------------------------------------------------------
 
 
-def _is_bare_name(text: str) -> bool:
-    separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
-    return not any(s in text for s in separators) and not text.endswith((".yaml", ".yml"))
-
-
-def _resolve(name_or_path: str | os.PathLike[str]) -> tuple[Path, str]:
-    if isinstance(name_or_path, str) and _is_bare_name(name_or_path):
-        name = name_or_path
-        available = worlds.list_worlds()
-        if name not in available:
-            raise WorldFileError(name, _unknown_world_reason(name, available))
-        path = worlds.world_path(name)
-        return path, str(path)
-    return Path(name_or_path), os.fspath(name_or_path)
-
-
-def _unknown_world_reason(name: str, available: Sequence[str]) -> str:
-    close = difflib.get_close_matches(name, available, n=1)
-    reason = f"unknown world; did you mean {close[0]!r}?" if close else "unknown world."
-    listing = ", ".join(available) if available else "(none)"
-    return f"{reason} Available worlds: {listing}. A file path must contain '/' or end in .yaml"
-
-
-def _shipped_hint(path: Path) -> str:
-    if path.suffix in (".yaml", ".yml") and path.stem in worlds.list_worlds():
-        return f" (for the shipped world, pass the bare name {path.stem!r})"
-    return ""
-
-
-_AT_LOCATION = re.compile(r"^(?P<reason>.*) - at `(?P<location>\$[^`]*)`$", re.DOTALL)
-
-
 def _validation_error(source: str, exc: msgspec.ValidationError) -> WorldFileError:
-    text = str(exc)
-    match = _AT_LOCATION.match(text)
-    if match is None:
-        return WorldFileError(source, text, "$")
-    return WorldFileError(source, match["reason"], match["location"])
+    reason, location = split_location(str(exc))
+    return WorldFileError(source, reason, location or "$")
 
 
 def _yaml_error(source: str, exc: msgspec.DecodeError) -> WorldFileError:
