@@ -64,8 +64,19 @@ def machine_info() -> dict[str, Any]:
         "msgspec": version("msgspec"),
         "pymunk": version("pymunk"),
         "commit": commit,
+        "fast_paths": _fast_paths(),
         "loadavg_at_start": list(os.getloadavg()) if hasattr(os, "getloadavg") else None,
     }
+
+
+def _fast_paths() -> str:
+    """The daemon's compiled paths as the daemon will see them (same environment)."""
+    from simd import native
+
+    status = native.status()
+    if all(v == "native" for v in status.values()):
+        return "compiled (" + ", ".join(status) + ")"
+    return "; ".join(f"{k}: {v}" for k, v in status.items())
 
 
 def machine_line(m: dict[str, Any]) -> str:
@@ -73,7 +84,7 @@ def machine_line(m: dict[str, Any]) -> str:
     return (
         f"{m['cpu']}, {m['cores']} cores ({m['cores_usable']} usable), {m['memory_gb']} GB, {m['os']}; "
         f"Python {m['python']}, numpy {m['numpy']}, zenoh {m['zenoh']}, msgspec {m['msgspec']}, "
-        f"pymunk {m['pymunk']}; commit {m['commit'] or '?'}"
+        f"pymunk {m['pymunk']}; commit {m['commit'] or '?'}; fast paths {m.get('fast_paths', '?')}"
         + (f"; load average at start {load[0]:.2f} {load[1]:.2f} {load[2]:.2f}" if load else "")
     )
 

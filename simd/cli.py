@@ -144,6 +144,14 @@ def main(argv: list[str] | None = None) -> int:
             f"listening on {', '.join(opts.listen) or '(config file)'}; prefix '{keys.prefix}'",
             flush=True,
         )
+        from simd import native
+
+        fast = native.status()
+        slow = [f"{name}: {why}" for name, why in fast.items() if why != "native"]
+        if slow:  # a user who wonders why the daemon is slow should see this
+            print(f"simd: running the numpy fallbacks of {'; '.join(slow)}", flush=True)
+        else:
+            log.info("compiled fast paths: %s", ", ".join(fast))
         print(
             f"simd: spawn a robot with: fleet-spawn tb3_0 --x {x:g} --y {y:g}   "
             f'(or zenoh get -s {keys.spawn} -v \'{{"name": "tb3_0", "x": {x:g}, "y": {y:g}}}\')',

@@ -4,6 +4,11 @@ It reproduces gazebo_ros_diff_drive at its 30 Hz update rate: each update moves 
 wheel's rim speed toward its target by at most ``max_wheel_acceleration * dt`` and snaps
 to the target once both wheels are within 0.01 m/s. Commands are first clamped to the
 model's limits (the TurtleBot3 firmware does this; the Gazebo plugin does not).
+
+``advance`` and ``report_twist`` are what the simulation calls once per tick; they run in the
+compiled ``simd._drive`` when it is built (one loop instead of ~60 small numpy operations,
+~0.25 ms a tick at 100 robots) and otherwise in the numpy functions here, which are the
+reference the compiled loop is tested against (simd/native.py).
 """
 
 from __future__ import annotations
@@ -11,7 +16,12 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from simd import native
+
 F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+_native, _why = native.load("_drive")
 
 #: The plugin snaps to the target when both wheels are this close (m/s).
 SNAP_TOLERANCE = 0.01
@@ -57,3 +67,84 @@ def arc_displacement(v: F64, w: F64, yaw: F64, dt: float) -> tuple[F64, F64]:
     left = np.where(small, v * dt * th * 0.5, v * dt * (1.0 - np.cos(safe)) / safe)
     c, s = np.cos(yaw), np.sin(yaw)
     return fwd * c - left * s, fwd * s + left * c
+
+
+def advance(
+    tick: int,
+    cmd_timeout: float,
+    dt: float,
+    last_cmd: I64,
+    target_v: F64,
+    target_w: F64,
+    max_v: F64,
+    max_w: F64,
+    separation: F64,
+    max_accel: F64,
+    wheel_l: F64,
+    wheel_r: F64,
+    yaw: F64,
+    use_native: bool | None = None,
+) -> tuple[F64, F64, F64, F64]:
+    """One controller update for every robot: returns (v, w, dx, dy), the body twist and the
+    world-frame displacement over ``dt``.
+
+    In place: targets older than ``cmd_timeout`` (when > 0) are zeroed (the plugin's
+    watchdog), and the wheel speeds ramp. ``use_native`` picks the path (default: compiled
+    when built).
+    """
+    n = len(yaw)
+    if (_native is not None) if use_native is None else use_native:
+        if _native is None:
+            raise RuntimeError(f"the compiled drive is not available: {_why}")
+        v, w, dx, dy = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        _native.advance(
+            tick, cmd_timeout, dt, last_cmd, target_v, target_w, max_v, max_w, separation, max_accel,
+            wheel_l, wheel_r, yaw, v, w, dx, dy,
+        )  # fmt: skip
+        return v, w, dx, dy
+    if cmd_timeout > 0 and n:
+        stale = (tick - last_cmd) * dt > cmd_timeout + 1e-9
+        target_v[stale] = 0.0
+        target_w[stale] = 0.0
+    lt, rt = wheel_targets(target_v, target_w, max_v, max_w, separation)
+    wheel_l[:], wheel_r[:] = ramp_wheels(wheel_l, wheel_r, lt, rt, max_accel, dt)
+    v, w = body_twist(wheel_l, wheel_r, separation)
+    dx, dy = arc_displacement(v, w, yaw, dt)
+    return v, w, dx, dy
+
+
+def report_twist(
+    dt: float,
+    tolerance: float,
+    x0: F64,
+    y0: F64,
+    yaw0: F64,
+    x: F64,
+    y: F64,
+    yaw: F64,
+    v: F64,
+    w: F64,
+    dx: F64,
+    dy: F64,
+    use_native: bool | None = None,
+) -> tuple[F64, F64, F64, F64]:
+    """The twist odometry reports after the physics moved the robots from (x0, y0, yaw0) to
+    (x, y, yaw): the wheels' (v, 0, w) when the motion was the free one (within
+    ``tolerance`` of (dx, dy, w * dt)), the achieved motion otherwise (pushed, blocked).
+    Returns (vx, vy, wz, yaw wrapped to [-pi, pi])."""
+    if (_native is not None) if use_native is None else use_native:
+        if _native is None:
+            raise RuntimeError(f"the compiled drive is not available: {_why}")
+        n = len(x)
+        vx, vy, wz, out_yaw = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        _native.report(dt, tolerance, x0, y0, yaw0, x, y, yaw, v, w, dx, dy, vx, vy, wz, out_yaw)
+        return vx, vy, wz, out_yaw
+    ax, ay = x - x0, y - y0
+    dyaw = np.arctan2(np.sin(yaw - yaw0), np.cos(yaw - yaw0))
+    free = (np.abs(ax - dx) < tolerance) & (np.abs(ay - dy) < tolerance) & (np.abs(dyaw - w * dt) < tolerance)
+    mid = yaw0 + 0.5 * dyaw
+    c, s = np.cos(mid), np.sin(mid)
+    vx = np.where(free, v, (ax * c + ay * s) / dt)
+    vy = np.where(free, 0.0, (-ax * s + ay * c) / dt)
+    wz = np.where(free, w, dyaw / dt)
+    return vx, vy, wz, np.arctan2(np.sin(yaw), np.cos(yaw))

@@ -8,6 +8,10 @@ produce), and each tick writes the new numbers into all templates with one numpy
 msgspec always encodes a float as MessagePack float64 (0xcb + 8 big-endian bytes), so the
 numbers sit at fixed offsets; the stamp's integers vary in size, so the stamp is encoded once
 per tick and spliced between the two halves of each template.
+
+The per-robot copies are done by the compiled ``simd._odompack`` when it is built (one pass,
+~0.2 us a robot instead of ~2 us); the numpy scatter below is the reference it is tested
+against, and the fallback.
 """
 
 from __future__ import annotations
@@ -17,7 +21,10 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.messages import Time
+from simd import native as _fast
 from simd.convert import odometry
+
+_native, _why = _fast.load("_odompack")  # None without a C compiler: the numpy path does the same
 
 F64 = npt.NDArray[np.float64]
 
@@ -52,13 +59,19 @@ class _Template:
 class OdometryEncoder:
     """Encodes one tick of odometry for every robot; templates are kept per namespace."""
 
-    def __init__(self) -> None:
+    def __init__(self, native: bool | None = None) -> None:
+        """``native``: use the compiled packer (default: when it is built)."""
+        if native and _native is None:
+            raise RuntimeError(f"the compiled odometry packer is not available: {_why}")
+        self.native = _native is not None if native is None else native
         self._templates: dict[str, _Template] = {}
         self._layout: list[str] = []
         self._buffer = np.zeros(0, dtype=np.uint8)
         self._bounds: list[tuple[int, int]] = []
         self._heads: list[bytes] = []
         self._index = np.zeros((0, 7, 8), dtype=np.int64)
+        self._bounds_array = np.zeros((0, 2), dtype=np.int64)
+        self._offsets = np.zeros((0, 7), dtype=np.int64)
 
     def forget(self, ns: str) -> None:
         self._templates.pop(ns, None)
@@ -86,6 +99,12 @@ class OdometryEncoder:
         base = np.asarray(starts, dtype=np.int64)[:, None] + offs.astype(np.int64)
         self._index = base[:, :, None] + np.arange(8, dtype=np.int64)[None, None, :]
         self._layout = list(namespaces)
+        self._arrays()
+
+    def _arrays(self) -> None:
+        """The layout as the compiled packer takes it: tail bounds and field offsets."""
+        self._bounds_array = np.asarray(self._bounds, dtype=np.int64).reshape(-1, 2)
+        self._offsets = np.ascontiguousarray(self._index[:, :, 0])
 
     def _append(self, new: list[str]) -> None:
         pos = len(self._buffer)
@@ -103,6 +122,7 @@ class OdometryEncoder:
         index = np.stack(rows)[:, :, None] + np.arange(8, dtype=np.int64)[None, None, :]
         self._index = np.concatenate([self._index, index])
         self._layout.extend(new)
+        self._arrays()
 
     def encode(
         self, namespaces: list[str], time: float, x: F64, y: F64, yaw: F64, vx: F64, vy: F64, wz: F64
@@ -113,6 +133,13 @@ class OdometryEncoder:
         if not namespaces:
             return []
         values = np.stack([x, y, np.sin(yaw * 0.5), np.cos(yaw * 0.5), vx, vy, wz], axis=1)
+        if self.native:
+            stamp = _encoder.encode(Time.from_seconds(time))
+            assert _native is not None
+            packed: list[bytes] = _native.pack(
+                self._heads, stamp, self._buffer, self._bounds_array, self._offsets, values
+            )
+            return packed
         self._buffer[self._index] = values.astype(">f8").view(np.uint8).reshape(len(namespaces), 7, 8)
         stamp = _encoder.encode(Time.from_seconds(time))
         buf = self._buffer.tobytes()

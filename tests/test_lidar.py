@@ -1,4 +1,7 @@
-"""Oracle tests of simd.lidar.cast against a slow, independent per-beam reference.
+"""Oracle tests of the lidar kernels against a slow, independent per-beam reference.
+
+Every test runs the numpy kernel (``cast_numpy``) and, when simd._raycast is built, the compiled
+one (``cast_native``); the oracle's scans are cached, so the second kernel costs little.
 
 The reference casts every beam on its own: shapely intersects the beam, as the segment from
 ``origin + range_min * dir`` to ``origin + range_max * dir``, with all visible segments and
@@ -10,7 +13,9 @@ which is how the far side is found).  The kernel must agree to 1e-4 m and on whi
 
 from __future__ import annotations
 
+import functools
 import math
+from collections.abc import Callable
 
 import numpy as np
 import numpy.typing as npt
@@ -21,7 +26,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import MultiLineString, Point
 
-from simd.lidar import LidarSpec, StaticScene, cast
+from simd import lidar
+from simd.lidar import LidarSpec, StaticScene, cast_native, cast_numpy
 from simd.models import BURGER as BURGER_MODEL
 
 F64 = npt.NDArray[np.float64]
@@ -32,6 +38,27 @@ SPEC = LidarSpec()
 # burger footprint outline: union of the chassis box and the two wheel boxes, 12 vertices
 # the burger footprint outline (12 vertices), as the simulator uses it
 BURGER = BURGER_MODEL.outline
+
+Kernel = Callable[..., npt.NDArray[np.float32]]
+# the kernels under test, as pytest parameters
+KERNELS = [
+    pytest.param(cast_numpy, id="numpy"),
+    pytest.param(
+        cast_native,
+        id="native",
+        marks=pytest.mark.skipif(
+            lidar.NATIVE_UNAVAILABLE is not None, reason=f"native lidar kernel: {lidar.NATIVE_UNAVAILABLE}"
+        ),
+    ),
+]
+
+
+def available_kernels() -> list[tuple[str, Kernel]]:
+    """The kernels that can run here, by name (for tests that check them all in one go)."""
+    kernels: list[tuple[str, Kernel]] = [("numpy", cast_numpy)]
+    if lidar.NATIVE_UNAVAILABLE is None:
+        kernels.append(("native", cast_native))
+    return kernels
 
 
 def ring(points: F64) -> F64:
@@ -71,7 +98,26 @@ def oracle(
     circles: F64,
     spec: LidarSpec = SPEC,
 ) -> F64:
-    """Per-beam reference scan (float64, +inf where nothing is hit)."""
+    """Per-beam reference scan (float64, +inf where nothing is hit), cached: every kernel is
+    checked against the same scans."""
+    seg = np.ascontiguousarray(segments, dtype=np.float64).reshape(-1, 4)
+    cir = np.ascontiguousarray(circles, dtype=np.float64).reshape(-1, 3)
+    key = (float(origin[0]), float(origin[1]), float(heading), seg.tobytes(), cir.tobytes(), spec)
+    return _oracle_cached(*key).copy()
+
+
+@functools.lru_cache(maxsize=4096)
+def _oracle_cached(ox: float, oy: float, heading: float, seg: bytes, cir: bytes, spec: LidarSpec) -> F64:
+    return _oracle((ox, oy), heading, np.frombuffer(seg).reshape(-1, 4), np.frombuffer(cir).reshape(-1, 3), spec)
+
+
+def _oracle(
+    origin: tuple[float, float],
+    heading: float,
+    segments: F64,
+    circles: F64,
+    spec: LidarSpec,
+) -> F64:
     ox, oy = origin
     ang = heading + spec.angle_min + np.arange(spec.samples) * ((spec.angle_max - spec.angle_min) / (spec.samples - 1))
     dirs = np.column_stack([np.cos(ang), np.sin(ang)])
@@ -103,6 +149,7 @@ def oracle(
 
 
 def run_cast(
+    kernel: Kernel,
     origin: tuple[float, float],
     heading: float,
     static_segments: F64,
@@ -114,7 +161,7 @@ def run_cast(
     scene = StaticScene(static_segments, circles, SPEC.range_max)
     dyn = no_segments() if dyn is None else dyn
     dyn_owner = np.zeros(len(dyn), dtype=np.int64) if dyn_owner is None else dyn_owner
-    res = cast(
+    res = kernel(
         scene,
         SPEC,
         np.array([origin], dtype=np.float64),
@@ -147,6 +194,7 @@ def check_scan(
     segments: F64,
     circles: F64,
     spec: LidarSpec = SPEC,
+    label: str = "",
 ) -> None:
     """``got`` must match the oracle to TOL on every beam, hit or +inf alike.
 
@@ -161,7 +209,7 @@ def check_scan(
             alt = oracle(origin, heading, *perturbed(segments, circles, spec, delta))
             bad &= ~close(got, alt)
     beams = np.flatnonzero(bad)[:10]
-    assert not bad.any(), f"beams {beams}: got {got[beams]}, want {want[beams]}"
+    assert not bad.any(), f"{label} beams {beams}: got {got[beams]}, want {want[beams]}"
 
 
 def close(got: npt.NDArray[np.float32], want: F64) -> npt.NDArray[np.bool_]:
@@ -249,46 +297,53 @@ POSES = [
 ]
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("pose", POSES, ids=[f"pose{i}" for i in range(len(POSES))])
 @pytest.mark.parametrize("scene", SCENES, ids=[s[0] for s in SCENES])
-def test_against_oracle(scene: tuple[str, F64, F64, F64, list[int]], pose: tuple[float, float, float]) -> None:
+def test_against_oracle(
+    scene: tuple[str, F64, F64, F64, list[int]], pose: tuple[float, float, float], kernel: Kernel
+) -> None:
     _, segments, circles, dyn, owners = scene
     x, y, heading = pose
-    got = run_cast((x, y), heading, segments, circles, dyn, np.array(owners, dtype=np.int64), owner=1)
+    got = run_cast(kernel, (x, y), heading, segments, circles, dyn, np.array(owners, dtype=np.int64), owner=1)
     visible = dyn[np.array(owners, dtype=np.int64) != 1] if len(dyn) else no_segments()
     check_scan(got, (x, y), heading, np.concatenate([segments, visible]), circles)
 
 
-def test_empty_scene_is_all_inf() -> None:
-    got = run_cast((3.0, -4.0), 1.0, no_segments(), no_circles())
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_empty_scene_is_all_inf(kernel: Kernel) -> None:
+    got = run_cast(kernel, (3.0, -4.0), 1.0, no_segments(), no_circles())
     assert np.isposinf(got).all()
 
 
-def test_range_semantics_exactly() -> None:
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_range_semantics_exactly(kernel: Kernel) -> None:
     """Far side from inside, nothing nearer than range_min, +inf beyond range_max."""
-    inside = run_cast((0.0, 0.0), 0.3, no_segments(), np.array([[0.0, 0.0, 1.0]]))
+    inside = run_cast(kernel, (0.0, 0.0), 0.3, no_segments(), np.array([[0.0, 0.0, 1.0]]))
     np.testing.assert_allclose(inside, 1.0, atol=1e-6)
-    tiny = run_cast((0.0, 0.0), 0.3, no_segments(), np.array([[0.0, 0.0, 0.1]]))
+    tiny = run_cast(kernel, (0.0, 0.0), 0.3, no_segments(), np.array([[0.0, 0.0, 0.1]]))
     assert np.isposinf(tiny).all()
-    ring_in = run_cast((0.0, 0.0), 0.0, no_segments(), np.array([[0.0, 0.0, 3.5 - 1e-4]]))
+    ring_in = run_cast(kernel, (0.0, 0.0), 0.0, no_segments(), np.array([[0.0, 0.0, 3.5 - 1e-4]]))
     np.testing.assert_allclose(ring_in, 3.5 - 1e-4, atol=1e-6)
-    ring_out = run_cast((0.0, 0.0), 0.0, no_segments(), np.array([[0.0, 0.0, 3.5 + 1e-4]]))
+    ring_out = run_cast(kernel, (0.0, 0.0), 0.0, no_segments(), np.array([[0.0, 0.0, 3.5 + 1e-4]]))
     assert np.isposinf(ring_out).all()
 
 
-def test_last_beam_is_at_angle_max_not_two_pi() -> None:
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_last_beam_is_at_angle_max_not_two_pi(kernel: Kernel) -> None:
     """A thin post in the 6.28 .. 2*pi gap is missed; one on the last beam is hit."""
     gap_bearing = (6.28 + 2 * math.pi) / 2
     post = np.array([[2.0 * math.cos(gap_bearing), 2.0 * math.sin(gap_bearing), 0.002]])
-    assert np.isposinf(run_cast((0.0, 0.0), 0.0, no_segments(), post)).all()
+    assert np.isposinf(run_cast(kernel, (0.0, 0.0), 0.0, no_segments(), post)).all()
     for heading in (0.0, 1.0, -2.0):
         last = np.array([[2.0 * math.cos(heading + 6.28), 2.0 * math.sin(heading + 6.28), 0.002]])
-        got = run_cast((0.0, 0.0), heading, no_segments(), last)
+        got = run_cast(kernel, (0.0, 0.0), heading, no_segments(), last)
         assert np.isfinite(got[359]) and np.isinf(got[:358]).all()
 
 
+@pytest.mark.parametrize("kernel", KERNELS)
 @pytest.mark.parametrize("offset", [(0.0, 0.0), (1234.5, -987.25)])
-def test_batch_of_sensors_matches_single_scans(offset: tuple[float, float]) -> None:
+def test_batch_of_sensors_matches_single_scans(offset: tuple[float, float], kernel: Kernel) -> None:
     """Many sensors of a fleet in one call: each sees the others, never itself (also far from
     the world origin, where float32 bearings would lose precision if taken in world coordinates).
     """
@@ -303,23 +358,26 @@ def test_batch_of_sensors_matches_single_scans(offset: tuple[float, float]) -> N
     pillars = np.array([[ox + 0.2, oy + 0.1, 0.15], [ox - 1.0, oy + 1.2, 0.3]])
     scene = StaticScene(walls, pillars, SPEC.range_max)
     origins = poses[:, :2] + np.column_stack([-0.032 * np.cos(poses[:, 2]), -0.032 * np.sin(poses[:, 2])])
-    got = cast(scene, SPEC, origins, poses[:, 2], np.arange(n, dtype=np.int64) + 10, dyn, owner)
+    got = kernel(scene, SPEC, origins, poses[:, 2], np.arange(n, dtype=np.int64) + 10, dyn, owner)
     for i in range(n):
         visible = np.concatenate([walls, dyn[owner != i + 10]])
         check_scan(got[i], (origins[i, 0], origins[i, 1]), float(poses[i, 2]), visible, pillars)
 
 
-def test_other_lidar_layouts() -> None:
-    """A partial-circle spec (no wrap-around) and a full 2*pi one."""
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_other_lidar_layouts(kernel: Kernel) -> None:
+    """A partial-circle spec (no wrap-around), a full 2*pi one, and a narrow field of view (one
+    turn is ~770 beam units: arcs that wrap past it once indexed beams that do not exist)."""
     segs = np.concatenate([box(-1.0, -1.0, 1.0, 1.0), regular(0.3, 0.2, 0.2, 5)])
     cir = np.array([[-0.4, 0.5, 0.2]])
     for spec in (
         LidarSpec(samples=181, angle_min=-math.pi / 2, angle_max=math.pi / 2, range_min=0.05, range_max=2.0),
         LidarSpec(samples=100, angle_min=0.0, angle_max=2 * math.pi, range_min=0.1, range_max=3.5),
+        LidarSpec(samples=50, angle_min=-0.2, angle_max=0.2, range_min=0.05, range_max=2.0),
     ):
         scene = StaticScene(segs, cir, spec.range_max)
         for heading in (0.0, 3.0, -1.0):
-            got = cast(
+            got = kernel(
                 scene,
                 spec,
                 np.array([[0.01, -0.02]]),
@@ -364,5 +422,7 @@ def test_random_scenes(
     assume(bool(np.all(np.abs(ax * ey - ay * ex) > 1e-6 * np.hypot(ex, ey))))
     dyn = np.concatenate([no_segments()] + [robot(*r) for r in robots])
     owners = np.repeat(np.arange(len(robots), dtype=np.int64), 12)
-    got = run_cast(origin, heading, segs, cirs, dyn, owners, owner=own)
-    check_scan(got, origin, heading, np.concatenate([segs, dyn[owners != own]]), cirs)
+    # both kernels in each example (hypothesis draws the examples once)
+    for name, kernel in available_kernels():
+        got = run_cast(kernel, origin, heading, segs, cirs, dyn, owners, owner=own)
+        check_scan(got, origin, heading, np.concatenate([segs, dyn[owners != own]]), cirs, label=name)

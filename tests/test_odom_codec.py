@@ -4,14 +4,24 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
+import pytest
 
 from protocol import Odometry, Time
+from simd import odom_codec
 from simd.convert import odometry
 from simd.odom_codec import OdometryEncoder
 
+PATHS = [
+    pytest.param(False, id="numpy"),
+    pytest.param(
+        True, id="native", marks=pytest.mark.skipif(odom_codec._native is None, reason="simd._odompack is not built")
+    ),
+]
 
-def test_template_encoding_is_byte_identical_to_msgspec() -> None:
-    enc = OdometryEncoder()
+
+@pytest.mark.parametrize("native", PATHS)
+def test_template_encoding_is_byte_identical_to_msgspec(native: bool) -> None:
+    enc = OdometryEncoder(native)
     rng = np.random.default_rng(1)
     names = ["a", "TB3_1", "robot_with_a_much_longer_namespace_than_usual"]
     for t in (0.0, 1 / 30, 12.345, 86400.5):
@@ -29,8 +39,9 @@ def test_template_encoding_is_byte_identical_to_msgspec() -> None:
             )
 
 
-def test_layout_follows_spawns_and_deletes() -> None:
-    enc = OdometryEncoder()
+@pytest.mark.parametrize("native", PATHS)
+def test_layout_follows_spawns_and_deletes(native: bool) -> None:
+    enc = OdometryEncoder(native)
     z = np.zeros(2)
     enc.encode(["a", "b"], 1.0, z, z, z, z, z, z)
     enc.forget("a")
@@ -41,8 +52,9 @@ def test_layout_follows_spawns_and_deletes() -> None:
     assert enc.encode([], 3.0, *(np.zeros(0) for _ in range(6))) == []
 
 
-def test_appending_robots_matches_a_full_layout() -> None:
-    grown, fresh = OdometryEncoder(), OdometryEncoder()
+@pytest.mark.parametrize("native", PATHS)
+def test_appending_robots_matches_a_full_layout(native: bool) -> None:
+    grown, fresh = OdometryEncoder(native), OdometryEncoder(native)
     names = [f"r{i}" for i in range(5)]
     z = np.zeros(5)
     grown.encode(names[:2], 0.5, z[:2], z[:2], z[:2], z[:2], z[:2], z[:2])

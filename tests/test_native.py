@@ -1,0 +1,153 @@
+"""The compiled fast paths (simd/_drive.c, simd/_odompack.c) against their numpy references,
+their input checks, and the FLEETSIM_NATIVE switch. The lidar kernel has its own file."""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+import pytest
+
+from protocol import Odometry, SpawnRequest
+from simd import drive, native, odom_codec
+from simd.odom_codec import OdometryEncoder
+from simd.sim import SimConfig, Simulation
+from simd.worldfile import load_world
+
+needs_drive = pytest.mark.skipif(drive._native is None, reason="simd._drive is not built")
+needs_pack = pytest.mark.skipif(odom_codec._native is None, reason="simd._odompack is not built")
+DT = 1.0 / 30.0
+
+
+def drive_inputs(rng: np.random.Generator, n: int) -> list[object]:
+    """Targets that are stale, clamped, snapped, ramped; straight and turning robots."""
+    last = rng.integers(0, 200, n).astype(np.int64)
+    tv = rng.normal(0, 0.4, n)
+    tw = rng.normal(0, 3.0, n)
+    tw[: n // 8] = 0.0  # straight: the small-turn branch
+    wl = rng.normal(0, 0.2, n)
+    wr = wl + rng.normal(0, 0.005, n)  # within the snap tolerance
+    wr[n // 2 :] = rng.normal(0, 0.2, n - n // 2)
+    sep = rng.choice([0.16, 0.287], n)
+    return [200, 3.0, DT, last, tv, tw, np.full(n, 0.22), np.full(n, 2.84), sep, np.full(n, 1.0), wl, wr,
+            rng.uniform(-4, 4, n)]  # fmt: skip
+
+
+def copy_args(args: list[object]) -> list[object]:
+    return [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+
+
+@needs_drive
+def test_compiled_drive_update_equals_numpy_bit_for_bit() -> None:
+    rng = np.random.default_rng(7)
+    for _ in range(20):
+        ref = drive_inputs(rng, 257)
+        fast = copy_args(ref)
+        out_ref = drive.advance(*ref, use_native=False)  # type: ignore[arg-type]
+        out_fast = drive.advance(*fast, use_native=True)  # type: ignore[arg-type]
+        for a, b in zip(out_ref, out_fast, strict=True):
+            assert np.array_equal(a, b)
+        for k in (4, 5, 10, 11):  # targets zeroed by the watchdog, wheels ramped in place
+            assert np.array_equal(ref[k], fast[k])  # type: ignore[arg-type]
+
+
+@needs_drive
+def test_compiled_twist_report_matches_numpy() -> None:
+    rng = np.random.default_rng(8)
+    n = 300
+    v, w, dx, dy = drive.advance(*drive_inputs(rng, n), use_native=False)  # type: ignore[arg-type]
+    x0, y0, yaw0 = rng.normal(size=(3, n))
+    x, y = x0 + dx, y0 + dy
+    yaw = yaw0 + w * DT + 2 * np.pi * rng.integers(-1, 2, n)  # wrapped or not
+    blocked = rng.random(n) < 0.3
+    x[blocked] -= 0.5 * dx[blocked]  # pushed: the achieved motion is reported
+    args = (DT, 1e-6, x0, y0, yaw0, x, y, yaw, v, w, dx, dy)
+    ref = drive.report_twist(*args, use_native=False)
+    fast = drive.report_twist(*args, use_native=True)
+    for a, b in zip(ref, fast, strict=True):
+        # libm's atan2/sin/cos against numpy's may differ in the last bit, nothing more
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-12)
+    assert np.array_equal(ref[1] == 0.0, fast[1] == 0.0)  # the same robots count as moving freely
+
+
+@needs_drive
+@pytest.mark.parametrize(
+    ("index", "bad", "error"),
+    [
+        (4, np.zeros(3), ValueError),  # wrong length
+        (4, np.zeros(8, dtype=np.float32), TypeError),  # wrong dtype
+        (3, np.zeros(8), TypeError),  # last_cmd must be int64
+        (10, np.zeros(16)[::2], TypeError),  # not contiguous
+        (11, np.zeros(8).tobytes(), TypeError),  # read-only where the wheels are written
+    ],
+)
+def test_compiled_drive_rejects_bad_buffers(index: int, bad: object, error: type[Exception]) -> None:
+    args = drive_inputs(np.random.default_rng(1), 8)
+    args[index] = bad
+    with pytest.raises(error):
+        drive.advance(*args, use_native=True)  # type: ignore[arg-type]
+
+
+@needs_drive
+def test_a_fleet_drives_the_same_with_either_path() -> None:
+    def run(use_native: bool) -> list[float]:
+        sim = Simulation(load_world("empty"), SimConfig(noise=False, cmd_timeout=0))
+        robots = [sim.spawn(SpawnRequest(name=f"r{i}", x=-2.0 + i, y=0.5 * i, model="burger")) for i in range(4)]
+        original = (drive.advance, drive.report_twist)
+        drive.advance = lambda *a, **k: original[0](*a, use_native=use_native)  # type: ignore[assignment]
+        drive.report_twist = lambda *a, **k: original[1](*a, use_native=use_native)  # type: ignore[assignment]
+        try:
+            for k, r in enumerate(robots):
+                sim.command(r, 0.2, 0.5 * (k - 1.5))
+            for _ in range(90):
+                sim.step()
+        finally:
+            drive.advance, drive.report_twist = original
+        return [v for r in robots for v in (sim.state(r).x, sim.state(r).y, sim.state(r).yaw)]
+
+    np.testing.assert_allclose(run(True), run(False), rtol=0, atol=1e-9)
+
+
+@needs_pack
+def test_compiled_odometry_bytes_equal_numpy() -> None:
+    rng = np.random.default_rng(2)
+    fast, ref = OdometryEncoder(native=True), OdometryEncoder(native=False)
+    names = [f"robot_{i}" for i in range(37)]
+    for t in (0.0, 0.5, 1e6):
+        cols = [rng.normal(size=len(names)) for _ in range(6)]
+        cols[0][0] = np.inf  # any float64 passes through unchanged
+        assert fast.encode(names, t, *cols) == ref.encode(names, t, *cols)
+    out = fast.encode(names[:3], 2.0, *(np.arange(3.0) for _ in range(6)))
+    assert msgspec.msgpack.decode(out[2], type=Odometry).pose.pose.position.x == 2.0
+
+
+@needs_pack
+def test_compiled_packer_checks_its_layout() -> None:
+    pack = odom_codec._native.pack  # type: ignore[union-attr]
+    tails = np.zeros(64, dtype=np.uint8)
+    bounds = np.array([[0, 64]], dtype=np.int64)
+    good = np.arange(7, dtype=np.int64) * 8
+    values = np.zeros((1, 7))
+    assert len(pack([b"h"], b"s", tails, bounds, good.reshape(1, 7), values)[0]) == 66
+    with pytest.raises(ValueError, match="outside its tail"):
+        pack([b"h"], b"s", tails, bounds, (good + 9).reshape(1, 7), values)
+    with pytest.raises(ValueError, match="outside tails"):
+        pack([b"h"], b"s", tails, np.array([[0, 65]], dtype=np.int64), good.reshape(1, 7), values)
+    with pytest.raises(TypeError):
+        pack([b"h"], b"s", tails, bounds, good.reshape(1, 7), values.astype(np.float32))
+    with pytest.raises(TypeError):
+        pack(["h"], b"s", tails, bounds, good.reshape(1, 7), values)
+    with pytest.raises(ValueError, match="holds"):
+        pack([b"h", b"i"], b"s", tails, bounds, good.reshape(1, 7), values)
+
+
+def test_the_switch_turns_the_compiled_paths_off(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv(native.ENV, "numpy")
+    module, why = native.load("_drive")
+    assert module is None and "numpy" in why
+    assert all(v.startswith("numpy") for v in native.status().values())
+    monkeypatch.setenv(native.ENV, "fast please")
+    with pytest.raises(ValueError, match="FLEETSIM_NATIVE"):
+        native.choice()
+    monkeypatch.setenv(native.ENV, "native")
+    with pytest.raises(ImportError, match="not built"):
+        native.load("_no_such_module")
