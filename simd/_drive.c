@@ -61,7 +61,7 @@ static void *borrow(Buffers *b, PyObject *obj, const char *name, char fmt, Py_ss
     if (*f == '<' || *f == '=' || *f == '@') {
         f++;
     }
-    int ok = view->itemsize == 8 && f[1] == '\0' && (f[0] == fmt || (fmt == 'q' && f[0] == 'l'));
+    int ok = view->itemsize == 8 && f[0] != '\0' && f[1] == '\0' && (f[0] == fmt || (fmt == 'q' && f[0] == 'l'));
     if (!ok) {
         PyErr_Format(PyExc_TypeError, "%s must hold %s", name, fmt == 'd' ? "float64" : "int64");
         return NULL;
@@ -73,14 +73,12 @@ static void *borrow(Buffers *b, PyObject *obj, const char *name, char fmt, Py_ss
     return view->buf;
 }
 
-static inline double clip(double a, double lo, double hi) {
-    /* np.clip(a, lo, hi) == np.minimum(np.maximum(a, lo), hi); NaN propagates */
-    double m = (a < lo) ? lo : a;
-    if (a != a) {
-        m = a;
-    }
-    return (m > hi) ? hi : m;
-}
+/* np.maximum / np.minimum: a NaN in either operand is the result */
+static inline double np_maximum(double a, double b) { return (a != a) ? a : (b != b) ? b : (a >= b ? a : b); }
+static inline double np_minimum(double a, double b) { return (a != a) ? a : (b != b) ? b : (a <= b ? a : b); }
+
+/* np.clip(a, lo, hi) == np.minimum(np.maximum(a, lo), hi) */
+static inline double clip(double a, double lo, double hi) { return np_minimum(np_maximum(a, lo), hi); }
 
 static PyObject *advance(PyObject *self, PyObject *args) {
     (void)self;

@@ -93,30 +93,34 @@ static PyObject *pack(PyObject *self, PyObject *args) {
     const double *val = (const double *)values.buf;
     const unsigned char *tail = (const unsigned char *)tails.buf;
 
+    /* allocated before the checks: nothing runs Python code between checking and copying */
+    out = PyList_New(n);
+    if (out == NULL) {
+        goto done;
+    }
     for (Py_ssize_t i = 0; i < n; i++) {
         int64_t a = bnd[2 * i], b = bnd[2 * i + 1];
         if (a < 0 || b < a || b > (int64_t)tails.len) {
             PyErr_Format(PyExc_ValueError, "bounds of robot %zd (%lld, %lld) are outside tails", i, (long long)a,
                          (long long)b);
+            Py_CLEAR(out);
             goto done;
         }
         for (int k = 0; k < FIELDS; k++) {
             int64_t o = off[FIELDS * i + k];
-            if (o < a || o + 8 > b) {
+            if (o < a || o > b - 8) { /* b >= a >= 0: b - 8 cannot overflow, o + 8 could */
                 PyErr_Format(PyExc_ValueError, "offset %d of robot %zd is outside its tail", k, i);
+                Py_CLEAR(out);
                 goto done;
             }
         }
         if (!PyBytes_Check(PyList_GET_ITEM(heads, i))) {
             PyErr_Format(PyExc_TypeError, "heads[%zd] is not bytes", i);
+            Py_CLEAR(out);
             goto done;
         }
     }
 
-    out = PyList_New(n);
-    if (out == NULL) {
-        goto done;
-    }
     const char *st = PyBytes_AS_STRING(stamp);
     Py_ssize_t st_len = PyBytes_GET_SIZE(stamp);
     for (Py_ssize_t i = 0; i < n; i++) {

@@ -13,6 +13,8 @@ reference the compiled loop is tested against (simd/native.py).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import numpy.typing as npt
 
@@ -97,9 +99,12 @@ def advance(
         if _native is None:
             raise RuntimeError(f"the compiled drive is not available: {_why}")
         v, w, dx, dy = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+        # read-only inputs are converted as numpy would take them; the targets and wheels are
+        # updated in place, so those must already be contiguous float64 (TypeError otherwise)
+        f64 = functools.partial(np.ascontiguousarray, dtype=np.float64)
         _native.advance(
-            tick, cmd_timeout, dt, last_cmd, target_v, target_w, max_v, max_w, separation, max_accel,
-            wheel_l, wheel_r, yaw, v, w, dx, dy,
+            tick, cmd_timeout, dt, np.ascontiguousarray(last_cmd, dtype=np.int64), target_v, target_w,
+            f64(max_v), f64(max_w), f64(separation), f64(max_accel), wheel_l, wheel_r, f64(yaw), v, w, dx, dy,
         )  # fmt: skip
         return v, w, dx, dy
     if cmd_timeout > 0 and n:
@@ -137,7 +142,8 @@ def report_twist(
             raise RuntimeError(f"the compiled drive is not available: {_why}")
         n = len(x)
         vx, vy, wz, out_yaw = np.empty(n), np.empty(n), np.empty(n), np.empty(n)
-        _native.report(dt, tolerance, x0, y0, yaw0, x, y, yaw, v, w, dx, dy, vx, vy, wz, out_yaw)
+        inputs = (np.ascontiguousarray(a, dtype=np.float64) for a in (x0, y0, yaw0, x, y, yaw, v, w, dx, dy))
+        _native.report(dt, tolerance, *inputs, vx, vy, wz, out_yaw)
         return vx, vy, wz, out_yaw
     ax, ay = x - x0, y - y0
     dyaw = np.arctan2(np.sin(yaw - yaw0), np.cos(yaw - yaw0))

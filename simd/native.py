@@ -42,9 +42,16 @@ def load(name: str) -> tuple[ModuleType | None, str]:
 
 
 def status() -> dict[str, str]:
-    """Which fast paths are in use, for the daemon's start-up log: name -> 'native' or why not."""
-    out = {}
-    for name in MODULES:
-        module, why = load(name)
-        out[name.lstrip("_")] = "native" if module is not None else f"numpy ({why})"
-    return out
+    """Which path each hot loop took, for the daemon's start-up line and the benchmark's
+    report: name -> 'native', or 'numpy (why)'. Read from the modules' own choices, so that
+    FLEETSIM_LIDAR (which overrides this switch for the lidar alone) is reported right."""
+    from simd import drive, lidar, odom_codec
+
+    def path(module: ModuleType | None, why: str | None) -> str:
+        return "native" if module is not None else f"numpy ({why})"
+
+    return {
+        "raycast": "native" if lidar.KERNEL == "native" else f"numpy ({lidar.NATIVE_UNAVAILABLE})",
+        "drive": path(drive._native, drive._why),
+        "odompack": path(odom_codec._native, odom_codec._why),
+    }

@@ -132,7 +132,9 @@ class OdometryEncoder:
             self._relayout(namespaces)
         if not namespaces:
             return []
-        values = np.stack([x, y, np.sin(yaw * 0.5), np.cos(yaw * 0.5), vx, vy, wz], axis=1)
+        values = np.ascontiguousarray(
+            np.stack([x, y, np.sin(yaw * 0.5), np.cos(yaw * 0.5), vx, vy, wz], axis=1), dtype=np.float64
+        )
         if self.native:
             stamp = _encoder.encode(Time.from_seconds(time))
             assert _native is not None

@@ -398,7 +398,7 @@ class Simulation:
         same seed and the same hits give the same scans.
         """
         spec = self.config.lidar
-        out = np.array(raw, dtype=np.float32, copy=True)
+        out = np.array(raw, dtype=np.float32, order="C", copy=True)  # C order: flat is a view
         flat = out.reshape(-1)
         hit = np.flatnonzero(flat < spec.range_max)  # inf and NaN compare false
         if self.config.noise:

@@ -3,6 +3,11 @@ their input checks, and the FLEETSIM_NATIVE switch. The lidar kernel has its own
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+
 import msgspec
 import numpy as np
 import pytest
@@ -74,8 +79,8 @@ def test_compiled_twist_report_matches_numpy() -> None:
     ("index", "bad", "error"),
     [
         (4, np.zeros(3), ValueError),  # wrong length
-        (4, np.zeros(8, dtype=np.float32), TypeError),  # wrong dtype
-        (3, np.zeros(8), TypeError),  # last_cmd must be int64
+        (4, np.zeros(8, dtype=np.float32), TypeError),  # the targets too (the watchdog zeroes them)
+        (10, np.zeros(8, dtype=np.float32), TypeError),  # the wheels are written in place: float64 only
         (10, np.zeros(16)[::2], TypeError),  # not contiguous
         (11, np.zeros(8).tobytes(), TypeError),  # read-only where the wheels are written
     ],
@@ -138,16 +143,80 @@ def test_compiled_packer_checks_its_layout() -> None:
         pack(["h"], b"s", tails, bounds, good.reshape(1, 7), values)
     with pytest.raises(ValueError, match="holds"):
         pack([b"h", b"i"], b"s", tails, bounds, good.reshape(1, 7), values)
+    huge = good.reshape(1, 7).copy()
+    huge[0, 0] = 2**63 - 4  # o + 8 would overflow int64: must be refused, not written
+    with pytest.raises(ValueError, match="outside its tail"):
+        pack([b"h"], b"s", tails, bounds, huge, values)
+    no_rows = np.zeros((0, 7), dtype=np.int64)
+    assert pack([], b"s", tails, np.zeros((0, 2), dtype=np.int64), no_rows, np.zeros((0, 7))) == []
 
 
 def test_the_switch_turns_the_compiled_paths_off(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(native.ENV, "numpy")
     module, why = native.load("_drive")
     assert module is None and "numpy" in why
-    assert all(v.startswith("numpy") for v in native.status().values())
     monkeypatch.setenv(native.ENV, "fast please")
     with pytest.raises(ValueError, match="FLEETSIM_NATIVE"):
         native.choice()
     monkeypatch.setenv(native.ENV, "native")
     with pytest.raises(ImportError, match="not built"):
         native.load("_no_such_module")
+
+
+def paths_in_a_fresh_process(**env: str) -> dict[str, str]:
+    """native.status() as a daemon started with this environment would report it."""
+    clean = {k: v for k, v in os.environ.items() if k not in ("FLEETSIM_NATIVE", "FLEETSIM_LIDAR")}
+    code = "import json; from simd import native; print(json.dumps(native.status()))"
+    done = subprocess.run(
+        [sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, check=True
+    )
+    result: dict[str, str] = json.loads(done.stdout)
+    return result
+
+
+@needs_drive
+@needs_pack
+def test_status_reports_the_path_each_loop_took() -> None:
+    off = paths_in_a_fresh_process(FLEETSIM_NATIVE="numpy")
+    assert all(v.startswith("numpy (FLEETSIM_NATIVE=numpy") for v in off.values()), off
+    lidar_only = paths_in_a_fresh_process(FLEETSIM_LIDAR="numpy")
+    assert lidar_only["raycast"].startswith("numpy") and lidar_only["drive"] == lidar_only["odompack"] == "native"
+
+
+@needs_drive
+def test_compiled_paths_take_what_numpy_takes() -> None:
+    """float32 positions or an int32 watchdog column work on either path (converted)."""
+    args = drive_inputs(np.random.default_rng(4), 16)
+    ref = copy_args(args)
+    args[3] = args[3].astype(np.int32)  # type: ignore[union-attr]
+    args[12] = args[12].astype(np.float32)  # type: ignore[union-attr]
+    ref[12] = ref[12].astype(np.float32).astype(np.float64)  # type: ignore[union-attr]
+    fast = drive.advance(*args, use_native=True)  # type: ignore[arg-type]
+    for a, b in zip(fast, drive.advance(*ref, use_native=False), strict=True):  # type: ignore[arg-type]
+        assert np.array_equal(a, b)
+    out = drive.report_twist(DT, 1e-6, *([np.zeros(3, dtype=np.float32)] * 10), use_native=True)  # type: ignore[arg-type]
+    assert all(np.array_equal(o, np.zeros(3)) for o in out)
+
+
+@needs_drive
+def test_compiled_twist_report_rejects_bad_outputs_and_handles_empty() -> None:
+    z = np.zeros(4)
+    with pytest.raises(TypeError):  # outputs must be writable
+        drive._native.report(DT, 1e-6, *([z] * 10), z, z, z, z.tobytes())  # type: ignore[union-attr]
+    with pytest.raises(ValueError):
+        drive._native.report(DT, 1e-6, *([z] * 10), z, z, z, np.zeros(3))  # type: ignore[union-attr]
+    empty = [np.zeros(0)] * 10
+    assert all(len(o) == 0 for o in drive.report_twist(DT, 1e-6, *empty, use_native=True))  # type: ignore[arg-type]
+    none = drive_inputs(np.random.default_rng(0), 0)
+    assert all(len(o) == 0 for o in drive.advance(*none, use_native=True))  # type: ignore[arg-type]
+
+
+@needs_drive
+def test_compiled_clamp_propagates_nan_as_numpy_does() -> None:
+    args = drive_inputs(np.random.default_rng(5), 8)
+    args[6] = np.full(8, np.nan)  # max_v: a NaN limit gives NaN speeds in numpy
+    ref = copy_args(args)
+    fast = drive.advance(*args, use_native=True)  # type: ignore[arg-type]
+    slow = drive.advance(*ref, use_native=False)  # type: ignore[arg-type]
+    for a, b in zip(fast, slow, strict=True):
+        np.testing.assert_array_equal(a, b)
