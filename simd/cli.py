@@ -98,6 +98,15 @@ def main(argv: list[str] | None = None) -> int:
     except WorldFileError as e:
         return fail(str(e))
 
+    from simd import native
+
+    try:  # importing the hot loops reads FLEETSIM_NATIVE / FLEETSIM_LIDAR
+        fast = native.status()
+    except (ValueError, ImportError) as e:
+        if "FLEETSIM_" not in str(e):
+            raise
+        return fail(str(e))
+
     import zenoh
 
     from simd.daemon import Daemon
@@ -144,12 +153,11 @@ def main(argv: list[str] | None = None) -> int:
             f"listening on {', '.join(opts.listen) or '(config file)'}; prefix '{keys.prefix}'",
             flush=True,
         )
-        from simd import native
-
-        fast = native.status()
-        slow = [f"{name}: {why}" for name, why in fast.items() if why != "native"]
+        slow = {name: why.removeprefix("numpy (").removesuffix(")") for name, why in fast.items() if why != "native"}
         if slow:  # a user who wonders why the daemon is slow should see this
-            print(f"simd: running the numpy fallbacks of {'; '.join(slow)}", flush=True)
+            reasons = set(slow.values())
+            why = reasons.pop() if len(reasons) == 1 else "; ".join(f"{k}: {v}" for k, v in slow.items())
+            print(f"simd: running the slower numpy versions of {', '.join(slow)} ({why})", flush=True)
         else:
             log.info("compiled fast paths: %s", ", ".join(fast))
         print(

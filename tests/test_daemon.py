@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -259,6 +260,18 @@ def test_bad_world_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
         assert p.returncode == 2
         lines = p.stderr.strip().splitlines()
         assert len(lines) == 1 and fragment in lines[0], p.stderr
+
+
+@pytest.mark.parametrize("variable", ["FLEETSIM_NATIVE", "FLEETSIM_LIDAR"])
+def test_bad_fast_path_switch_is_one_line_and_exit_2(variable: str) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("FLEETSIM_NATIVE", "FLEETSIM_LIDAR")}
+    p = subprocess.run(
+        simd_command("-l", f"tcp/127.0.0.1:{free_port()}"),
+        capture_output=True, text=True, timeout=20, cwd=ROOT, env={**env, variable: "fastest"},
+    )  # fmt: skip
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and variable in lines[0] and "'numpy'" in lines[0], p.stderr
 
 
 def test_help_lists_the_flags() -> None:
