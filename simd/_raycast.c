@@ -90,6 +90,10 @@
 #define BIG_GROUP_RADIUS 1.0
 /* Groups farther out than this (m) are not binned either (keeps the grid arithmetic finite). */
 #define MAX_BIN_COORD 1e12
+/* Largest range_max accepted (m): squares of the search reach stay far from overflow. */
+#define MAX_RANGE 1e6
+/* Smallest dynamic grid cell accepted (m): its inverse stays finite. */
+#define MIN_DYN_CELL 1e-6
 /* Extra reach (m) of the grid search, against rounding of the cell arithmetic. */
 #define GRID_MARGIN 1e-3
 /* Bounding-box slack (m) of the static range cull. */
@@ -905,7 +909,7 @@ cast_dynamic(const Ctx *c, DynIndex *d, const Sensor *s)
     }
     r0 = floor((s->oy - reach - d->y0) * d->inv);
     r1 = floor((s->oy + reach - d->y0) * d->inv);
-    if (r1 < 0.0 || r0 > (double)(d->ny - 1)) {
+    if (!(r0 <= r1) || r1 < 0.0 || r0 > (double)(d->ny - 1)) { /* !(r0 <= r1): NaN never indexes */
         return;
     }
     row_lo = r0 < 0.0 ? 0 : (Py_ssize_t)r0;
@@ -926,7 +930,7 @@ cast_dynamic(const Ctx *c, DynIndex *d, const Sensor *s)
         half = sqrt(reach * reach - gap * gap);
         c0 = floor((s->ox - half - d->x0) * d->inv);
         c1 = floor((s->ox + half - d->x0) * d->inv);
-        if (c1 < 0.0 || c0 > (double)(d->nx - 1)) {
+        if (!(c0 <= c1) || c1 < 0.0 || c0 > (double)(d->nx - 1)) {
             continue;
         }
         col_lo = c0 < 0.0 ? 0 : (Py_ssize_t)c0;
@@ -1132,6 +1136,17 @@ raycast_cast(PyObject *Py_UNUSED(module), PyObject *args, PyObject *kwargs)
     }
     if (gnx < 1 || gny < 1 || gnx > PY_SSIZE_T_MAX / gny - 1 || !(gcell > 0.0)) {
         PyErr_SetString(PyExc_ValueError, "grid_nx, grid_ny must be >= 1 and grid_cell > 0");
+        return NULL;
+    }
+    /* Finite, ordered numbers only: a NaN or an infinity here would reach the float-to-index
+     * conversions of the grids (undefined behaviour in C), and range_max is bounded so that
+     * squares of the search reach stay finite. */
+    if (!(range_min >= 0.0 && range_min < range_max && range_max <= MAX_RANGE) || !isfinite(gx) || !isfinite(gy)
+        || !isfinite(gcell) || !(eps_seg >= 0.0 && isfinite(eps_seg)) || !(eps_cull >= 0.0 && isfinite(eps_cull))
+        || !(gmr >= 0.0 && isfinite(gmr)) || !(dyn_cell >= MIN_DYN_CELL && isfinite(dyn_cell))) {
+        PyErr_SetString(PyExc_ValueError,
+                        "need 0 <= range_min < range_max <= 1e6, finite grid origin and cell, finite eps_seg, "
+                        "eps_cull and group_max_radius >= 0, and dyn_cell >= 1e-6");
         return NULL;
     }
 

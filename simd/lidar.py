@@ -131,6 +131,11 @@ EPS_ANGLE_NATIVE = EPS_ANGLE + 1e-5
 # the beam padding (EPS_ANGLE) lets through.
 EPS_SEG = 1e-9
 
+# Bounds of a LidarSpec, the same as the compiled kernel's: a range beyond MAX_RANGE (m) would
+# let squared distances overflow, and more than MAX_SAMPLES beams is no lidar.
+MAX_RANGE = 1e6
+MAX_SAMPLES = 1 << 24
+
 # Slack (m) on every range cull, so that rounding never drops a primitive at exactly range_max.
 EPS_CULL = 1e-9
 
@@ -195,8 +200,10 @@ class LidarSpec:
             raise ValueError("samples must be >= 2")
         if not 0.0 < self.angle_max - self.angle_min <= TWO_PI:
             raise ValueError("angle_max - angle_min must lie in (0, 2*pi]")
-        if not 0.0 <= self.range_min < self.range_max:
-            raise ValueError("need 0 <= range_min < range_max")
+        if not 0.0 <= self.range_min < self.range_max <= MAX_RANGE:
+            raise ValueError(f"need 0 <= range_min < range_max <= {MAX_RANGE:g} m")
+        if self.samples > MAX_SAMPLES:
+            raise ValueError(f"samples must be at most {MAX_SAMPLES}")
 
     @property
     def angle_increment(self) -> float:

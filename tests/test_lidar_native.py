@@ -475,6 +475,17 @@ BAD: list[tuple[str, str, Change, type[Exception]]] = [
     ("grid_ny", "huge", lambda a: 1 << 62, ValueError),
     ("grid_cell", "0", lambda a: 0.0, ValueError),
     ("grid_nx", "str", lambda a: "3", TypeError),
+    # numbers that would reach the grids' float-to-index conversions as NaN or infinity
+    ("range_max", "nan", lambda a: math.nan, ValueError),
+    ("range_max", "1e200", lambda a: 1e200, ValueError),
+    ("range_min", "nan", lambda a: math.nan, ValueError),
+    ("range_min", "above range_max", lambda a: 10.0, ValueError),
+    ("eps_cull", "nan", lambda a: math.nan, ValueError),
+    ("eps_seg", "inf", lambda a: math.inf, ValueError),
+    ("group_max_radius", "nan", lambda a: math.nan, ValueError),
+    ("dyn_cell", "subnormal", lambda a: 1e-310, ValueError),
+    ("grid_x0", "inf", lambda a: math.inf, ValueError),
+    ("grid_cell", "inf", lambda a: math.inf, ValueError),
 ]
 
 
@@ -519,3 +530,11 @@ def test_inconsistent_static_grid_raises(corrupt: Callable[[I64, I64], tuple[I64
     args[-1] = np.empty((n, SPEC.samples))
     with pytest.raises(ValueError, match="inconsistent static grid"):
         native_module().cast(*args)
+
+
+@pytest.mark.parametrize(
+    "spec", [dict(range_max=1e200), dict(range_max=math.inf), dict(range_max=math.nan), dict(samples=1 << 25)]
+)
+def test_specs_the_kernels_cannot_serve_are_refused(spec: dict[str, float]) -> None:
+    with pytest.raises(ValueError):
+        LidarSpec(**spec)  # type: ignore[arg-type]
