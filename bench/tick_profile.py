@@ -155,8 +155,9 @@ def main(argv: list[str] | None = None) -> int:
         sub.stdin.flush()
         got = sub.stdout.readline().split()
     finally:
-        sub.kill() if sub.poll() is None and sub.stdin is None else None
         session.close()
+        if sub.poll() is None:
+            sub.kill()
         sub.wait(5)
 
     n = len(per_tick)

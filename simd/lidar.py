@@ -99,14 +99,14 @@ releases the GIL during the array work.  See tests/bench_lidar.py.
 from __future__ import annotations
 
 import functools
-import importlib
-import os
 from dataclasses import dataclass
 from typing import Protocol
 from typing import cast as _typed
 
 import numpy as np
 import numpy.typing as npt
+
+from simd import native
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]
@@ -726,30 +726,11 @@ def _native_spec_args(spec: LidarSpec) -> _SpecArgs:
     )
 
 
-def _kernel_choice() -> tuple[str, str]:
-    """("auto" | "native" | "numpy", the variable that says so): FLEETSIM_LIDAR, else the switch
-    of all the compiled fast paths, FLEETSIM_NATIVE."""
-    for var in ("FLEETSIM_LIDAR", "FLEETSIM_NATIVE"):
-        value = os.environ.get(var, "").strip().lower()
-        if value not in ("", "auto", "native", "numpy"):
-            raise ValueError(f"{var}={value!r}: expected 'auto', 'native' or 'numpy'")
-        if value:
-            return value, var
-    return "auto", ""
-
-
 def _load_native() -> tuple[_NativeModule | None, str | None]:
-    """The compiled kernel, or None and the reason why it is not used."""
-    choice, var = _kernel_choice()
-    if choice == "numpy":
-        return None, f"{var}=numpy"
-    try:
-        module = importlib.import_module("simd._raycast")
-    except ImportError as exc:
-        if choice == "native":
-            raise ImportError(f"{var}=native but simd._raycast is not built: {exc}") from exc
-        return None, f"simd._raycast is not built ({exc})"
-    return _typed(_NativeModule, module), None
+    """The compiled kernel, or None and the reason why it is not used (simd/native.py's switch,
+    which FLEETSIM_LIDAR overrides for the lidar alone)."""
+    module, why = native.load("_raycast", override="FLEETSIM_LIDAR")
+    return (_typed(_NativeModule, module), None) if module is not None else (None, why)
 
 
 _NATIVE, NATIVE_UNAVAILABLE = _load_native()

@@ -18,26 +18,30 @@ import os
 from types import ModuleType
 
 ENV = "FLEETSIM_NATIVE"
-MODULES = ("_raycast", "_drive", "_odompack")
 
 
-def choice() -> str:
-    value = os.environ.get(ENV, "auto").strip().lower() or "auto"
-    if value not in ("auto", "native", "numpy"):
-        raise ValueError(f"{ENV}={value!r}: expected 'auto', 'native' or 'numpy'")
-    return value
+def choice(override: str | None = None) -> tuple[str, str]:
+    """("auto" | "native" | "numpy", the variable that says so): ``override`` (a variable for
+    one loop, e.g. FLEETSIM_LIDAR) when it is set, else FLEETSIM_NATIVE, else auto."""
+    for var in (override, ENV) if override else (ENV,):
+        value = os.environ.get(var, "").strip().lower()
+        if value not in ("", "auto", "native", "numpy"):
+            raise ValueError(f"{var}={value!r}: expected 'auto', 'native' or 'numpy'")
+        if value:
+            return value, var
+    return "auto", ""
 
 
-def load(name: str) -> tuple[ModuleType | None, str]:
-    """The compiled module ``simd.<name>``, or None and why it is not used."""
-    wanted = choice()
+def load(name: str, override: str | None = None) -> tuple[ModuleType | None, str | None]:
+    """The compiled module ``simd.<name>`` and None, or None and why it is not used."""
+    wanted, var = choice(override)
     if wanted == "numpy":
-        return None, f"{ENV}=numpy"
+        return None, f"{var}=numpy"
     try:
-        return importlib.import_module(f"simd.{name}"), "built"
+        return importlib.import_module(f"simd.{name}"), None
     except ImportError as exc:
         if wanted == "native":
-            raise ImportError(f"{ENV}=native but simd.{name} is not built: {exc}") from exc
+            raise ImportError(f"{var}=native but simd.{name} is not built: {exc}") from exc
         return None, f"simd.{name} is not built ({exc})"
 
 
