@@ -56,22 +56,33 @@ class Physics:
         )
         self._rows_n = 0
         self._n_iter = 0
+        # pymunk.batch.Buffer() mallocs two small arrays that nothing ever frees (~160 bytes
+        # per Buffer, pymunk 7.3): one per tick would leak ~800 MB a day at real time. These
+        # two live as long as the world: one pymunk fills (clear() and refill reuses its
+        # array), one that points at our numpy velocities (pymunk must never grow that one).
+        self._read_buf = pymunk.batch.Buffer()
+        self._write_buf = pymunk.batch.Buffer()
+        self._velocities = np.zeros((0, 3), dtype=np.float64)
 
     # -- robots -------------------------------------------------------------------------
 
     def _make_body(self, model: RobotModel) -> tuple[pymunk.Body, list[pymunk.Shape]]:
+        """A body with one convex collision shape: the hull of chassis and wheels.
+
+        The exact footprint (chassis box plus two wheel boxes) has a notch behind each wheel,
+        1.9 cm deep on a burger. Against walls and round pillars the hull touches exactly
+        where the footprint does (their first contact is an extreme vertex, and those are
+        the hull's); only a sharp corner pushed into a notch meets the hull earlier. One shape
+        instead of three makes contacts a third as many: robots pressing into walls and into
+        each other are most of pymunk's time (0.37 -> 0.25 ms per tick at 100 robots). The
+        lidar still sees the exact outline.
+        """
         body = pymunk.Body()
-        rects = model.rects()
-        areas = [(r[1] - r[0]) * (r[3] - r[2]) for r in rects]
-        total = sum(areas)
-        shapes: list[pymunk.Shape] = []
-        for (x0, x1, y0, y1), area in zip(rects, areas, strict=True):
-            s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
-            s.mass = model.mass * area / total
-            s.friction = 0.0
-            s.collision_type = _ROBOT
-            shapes.append(s)
-        return body, shapes
+        shape = pymunk.Poly(body, [tuple(p) for p in model.hull])
+        shape.mass = model.mass
+        shape.friction = 0.0
+        shape.collision_type = _ROBOT
+        return body, [shape]
 
     def blocker(self, model: RobotModel, x: float, y: float, yaw: float) -> int | None:
         """What the footprint at this pose would overlap: -1 for static geometry, a robot
@@ -129,7 +140,8 @@ class Physics:
         which bodies are robots. Recomputed only after a robot is added or removed: the
         caller's rows change only then too."""
         if self._order_dirty or self._rows_n != len(rids):
-            buf = pymunk.batch.Buffer()
+            buf = self._read_buf
+            buf.clear()
             pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.BODY_ID, buf)
             ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
             row_of_rid = {int(rid): row for row, rid in enumerate(rids)}
@@ -138,6 +150,7 @@ class Physics:
             self._rows_cache = (rows, rows >= 0)
             self._rows_n = len(rids)
             self._n_iter = len(ids)
+            self._velocities = np.zeros((len(ids), 3), dtype=np.float64)  # bodies not ours stay 0
             self._order_dirty = False
         return self._rows_cache
 
@@ -145,13 +158,13 @@ class Physics:
         """Set each robot's world velocity (rows aligned with ``rids``) and advance ``dt``."""
         rows, ok = self._rows(rids)
         if self._n_iter:
-            out = np.zeros((self._n_iter, 3), dtype=np.float64)
+            out = self._velocities
             r = rows[ok]
             out[ok, 0] = vx[r]
             out[ok, 1] = vy[r]
             out[ok, 2] = w[r]
-            buf = pymunk.batch.Buffer()
-            buf.set_float_buf(out.ravel())
+            buf = self._write_buf
+            buf.set_float_buf(out.reshape(-1))
             pymunk.batch.set_space_bodies(self.space, _SET_FIELDS, buf)
         h = dt / self.substeps
         for _ in range(self.substeps):
@@ -166,7 +179,8 @@ class Physics:
         if not n:
             return x, y, a
         rows, ok = self._rows(rids)
-        buf = pymunk.batch.Buffer()
+        buf = self._read_buf
+        buf.clear()
         pymunk.batch.get_space_bodies(self.space, _GET_FIELDS, buf)
         data = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
         r = rows[ok]

@@ -109,6 +109,8 @@ class Simulation:
         self._seed = self.config.seed
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
         self._robots: list[Robot] = []
+        # every tick hands out this list: replaced (never changed in place) on spawn and delete
+        self._namespaces: list[str] = []
         self._by_key: dict[str, Robot] = {}  # names and namespaces share one key space
         self._row_of: dict[str, int] = {}  # namespace -> row in the state arrays
         self._next_rid = 0
@@ -133,6 +135,7 @@ class Simulation:
         self._lidar_off: F64 = np.zeros((n, 2))
         self._outline: F64 = np.zeros((n, 12, 2))
         self._phase: I64 = np.zeros(n, dtype=np.int64)
+
     # -- queries ----------------------------------------------------------------------
 
     @property
@@ -241,6 +244,7 @@ class Simulation:
         self.physics.add_robot(robot.rid, model, x, y, yaw)
         self._row_of[namespace] = len(self._robots)
         self._robots.append(robot)
+        self._namespaces = [*self._namespaces, namespace]
         self._by_key[name] = robot
         self._by_key[namespace] = robot
 
@@ -272,6 +276,7 @@ class Simulation:
         last = self._state_at(robot, i)
         self.physics.remove_robot(robot.rid)
         del self._robots[i]
+        self._namespaces = [r.namespace for r in self._robots]
         self._row_of = {r.namespace: k for k, r in enumerate(self._robots)}
         del self._by_key[robot.name]
         self._by_key.pop(robot.namespace, None)
@@ -355,7 +360,7 @@ class Simulation:
         return TickOutput(
             tick=self.tick,
             time=self.time,
-            namespaces=[r.namespace for r in self._robots],
+            namespaces=self._namespaces,
             x=self._x,
             y=self._y,
             yaw=self._yaw,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -182,3 +183,30 @@ def test_spawned_pose_is_free_of_obstacles_per_shapely() -> None:
         c, s = math.cos(st.yaw), math.sin(st.yaw)
         fp = Polygon([(st.x + px * c - py * s, st.y + px * s + py * c) for px, py in BURGER.outline])
         assert not any(fp.intersects(o) for o in obstacles)
+
+
+def _rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * 4096
+
+
+@pytest.mark.skipif(not Path("/proc/self/statm").exists(), reason="needs Linux /proc")
+def test_physics_does_not_leak_memory_per_tick() -> None:
+    """pymunk.batch.Buffer() leaks ~160 bytes each; a daemon must not make one per tick
+    (at 600 ticks a second that was ~0.7 GB an hour)."""
+    sim = Simulation(load_world("empty"), SimConfig(noise=False))
+    sim.spawn(SpawnRequest(name="r", x=0.0, y=0.0))
+    physics = sim.physics
+    rids = sim._rid
+    zero = np.zeros(1)
+    for _ in range(2000):  # warm up allocator pools
+        physics.step(rids, zero, zero, zero, 1 / 30)
+        physics.poses(rids)
+    before = _rss_bytes()
+    ticks = 60_000
+    for _ in range(ticks):
+        physics.step(rids, zero, zero, zero, 1 / 30)
+        physics.poses(rids)
+    grown = _rss_bytes() - before
+    # a leak of one Buffer per call would be ~19 MB here
+    assert grown < 3_000_000, f"RSS grew by {grown / 1e6:.1f} MB over {ticks} ticks"
