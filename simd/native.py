@@ -1,8 +1,9 @@
 """The compiled fast paths, and the one switch that turns them off.
 
-Three hot loops of the tick have a C twin built with the package (when a C compiler is
-there): the lidar kernel (``simd._raycast``), the diff-drive arithmetic (``simd._drive``) and
-the odometry packer (``simd._odompack``). Each numpy version stays in the code as the
+Four hot loops of the tick have a C twin built with the package (when a C compiler is
+there): the lidar kernel (``simd._raycast``), the lidar's noise and masking
+(``simd._scannoise``), the diff-drive arithmetic (``simd._drive``) and the odometry packer
+(``simd._odompack``). Each numpy version stays in the code as the
 reference that tests compare the C one with, and as the fallback where nothing was compiled.
 
 ``FLEETSIM_NATIVE`` chooses: ``auto`` (default) uses what is built, ``numpy`` uses none of
@@ -49,13 +50,14 @@ def status() -> dict[str, str]:
     """Which path each hot loop took, for the daemon's start-up line and the benchmark's
     report: name -> 'native', or 'numpy (why)'. Read from the modules' own choices, so that
     FLEETSIM_LIDAR (which overrides this switch for the lidar alone) is reported right."""
-    from simd import drive, lidar, odom_codec
+    from simd import drive, lidar, odom_codec, sensor_model
 
     def path(module: ModuleType | None, why: str | None) -> str:
         return "native" if module is not None else f"numpy ({why})"
 
     return {
         "raycast": "native" if lidar.KERNEL == "native" else f"numpy ({lidar.NATIVE_UNAVAILABLE})",
+        "scannoise": path(sensor_model._native, sensor_model._why),
         "drive": path(drive._native, drive._why),
         "odompack": path(odom_codec._native, odom_codec._why),
     }

@@ -18,7 +18,7 @@ from protocol.control import MODELS as MODEL_NAMES
 from protocol.control import SpawnRequest
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
-from simd import drive
+from simd import drive, sensor_model
 from simd.lidar import LidarSpec, StaticScene, cast
 from simd.models import MODELS, RobotModel
 from simd.physics import Physics
@@ -397,23 +397,6 @@ class Simulation:
         return self._sensor_model(raw)
 
     def _sensor_model(self, raw: F32) -> F32:
-        """Gazebo RaySensor masking and noise: >= max is +inf, else noise then clamp.
-
-        Noise is drawn only for the beams that hit something, in row-major order, so the
-        same seed and the same hits give the same scans.
-        """
-        spec = self.config.lidar
-        out = np.array(raw, dtype=np.float32, order="C", copy=True)  # C order: flat is a view
-        flat = out.reshape(-1)
-        hit = np.flatnonzero(flat < spec.range_max)  # inf and NaN compare false
-        if self.config.noise:
-            vals = flat[hit]
-            noise = self.rng.standard_normal(vals.size, dtype=np.float32)
-            noise *= np.float32(self.config.noise_stddev)
-            vals += noise
-            np.clip(vals, spec.range_min, spec.range_max, out=vals)
-        else:
-            vals = flat[hit]
-        flat.fill(np.inf)  # index lists and a fill: boolean masks cost twice as much here
-        flat[hit] = vals
-        return out
+        """Gazebo RaySensor masking and noise (simd/sensor_model.py)."""
+        cfg = self.config
+        return sensor_model.apply(raw, cfg.lidar, cfg.noise_stddev if cfg.noise else 0.0, self.rng)

@@ -1,5 +1,6 @@
-"""The compiled fast paths (simd/_drive.c, simd/_odompack.c) against their numpy references,
-their input checks, and the FLEETSIM_NATIVE switch. The lidar kernel has its own file."""
+"""The compiled fast paths (simd/_drive.c, simd/_odompack.c, simd/_scannoise.c through
+simd/sensor_model.py) against their numpy references, their input checks, and the
+FLEETSIM_NATIVE switch. The lidar kernel and the noise generator have their own files."""
 
 from __future__ import annotations
 
@@ -13,13 +14,15 @@ import numpy as np
 import pytest
 
 from protocol import Odometry, SpawnRequest
-from simd import drive, native, odom_codec
+from simd import drive, native, odom_codec, sensor_model
+from simd.lidar import LidarSpec
 from simd.odom_codec import OdometryEncoder
 from simd.sim import SimConfig, Simulation
 from simd.worldfile import load_world
 
 needs_drive = pytest.mark.skipif(drive._native is None, reason="simd._drive is not built")
 needs_pack = pytest.mark.skipif(odom_codec._native is None, reason="simd._odompack is not built")
+needs_noise = pytest.mark.skipif(sensor_model._native is None, reason="simd._scannoise is not built")
 DT = 1.0 / 30.0
 
 
@@ -220,3 +223,43 @@ def test_compiled_clamp_propagates_nan_as_numpy_does() -> None:
     slow = drive.advance(*ref, use_native=False)  # type: ignore[arg-type]
     for a, b in zip(fast, slow, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def raw_scans(rng: np.random.Generator, rows: int = 40) -> np.ndarray:
+    """Ranges as the kernel returns them: hits, misses (inf), and the awkward values."""
+    raw = rng.uniform(0.05, 4.0, (rows, 360)).astype(np.float32)
+    raw[rng.random(raw.shape) < 0.3] = np.inf
+    raw[0, :6] = [np.nan, 3.5, 0.12, 0.11999, 3.49999, -0.0]
+    return raw
+
+
+@needs_noise
+def test_sensor_model_paths_mask_and_clamp_alike() -> None:
+    spec = LidarSpec()
+    raw = raw_scans(np.random.default_rng(8))
+    rng = np.random.default_rng(0)
+    quiet = [sensor_model.apply(raw, spec, 0.0, rng, use_native=p) for p in (True, False)]
+    assert quiet[0].tobytes() == quiet[1].tobytes()  # no noise: the same to the bit
+    noisy = [sensor_model.apply(raw, spec, 0.01, np.random.default_rng(3), use_native=p) for p in (True, False)]
+    for out in noisy:
+        assert np.array_equal(np.isinf(out), ~(raw < spec.range_max))  # +inf exactly where nothing hit
+        hit = np.isfinite(out)
+        assert out[hit].min() >= spec.range_min and out[hit].max() <= spec.range_max
+        inner = hit & (raw > 0.2) & (raw < 3.3)  # away from the clamps: the noise itself
+        err = (out[inner] - raw[inner]).astype(np.float64)
+        assert abs(err.mean()) < 0.0005 and 0.0095 < err.std() < 0.0105
+    assert not np.array_equal(noisy[0], noisy[1])  # different generators: documented
+
+
+@needs_noise
+def test_sensor_model_compiled_path_is_deterministic_and_leaves_its_input_alone() -> None:
+    spec = LidarSpec()
+    raw = raw_scans(np.random.default_rng(9))
+    before = raw.copy()
+    a = sensor_model.apply(raw, spec, 0.01, np.random.default_rng(5), use_native=True)
+    b = sensor_model.apply(raw, spec, 0.01, np.random.default_rng(5), use_native=True)
+    c = sensor_model.apply(raw, spec, 0.01, np.random.default_rng(6), use_native=True)
+    assert a.tobytes() == b.tobytes() and a.tobytes() != c.tobytes()
+    assert np.array_equal(raw, before, equal_nan=True)
+    empty = sensor_model.apply(np.zeros((0, 360), dtype=np.float32), spec, 0.01, np.random.default_rng(1))
+    assert empty.shape == (0, 360)
