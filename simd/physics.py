@@ -28,7 +28,10 @@ class Physics:
 
     def __init__(self, world: WorldGeometry, substeps: int = 2) -> None:
         self.space = pymunk.Space()
-        self.space.iterations = 10
+        # Contacts here are robots pushed by velocities set every tick, not stacks: 5 solver
+        # passes leave the same contact depths as 10 (wall 1.7 mm, head-on 2.9 mm, a pile of
+        # five robots 2.9 mm in all) and take ~0.07 ms (~5 %) off the tick of 100 wandering robots.
+        self.space.iterations = 5
         # pymunk's defaults are tuned for pixels: 0.1 of allowed overlap would let a robot
         # sink 10 cm into a wall, and through a thin one. Work in metres.
         self.space.collision_slop = 0.0005
