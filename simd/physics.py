@@ -59,10 +59,11 @@ class Physics:
         )
         self._rows_n = 0
         self._n_iter = 0
-        # pymunk.batch.Buffer() mallocs two small arrays that nothing ever frees (~160 bytes
-        # per Buffer, pymunk 7.3): one per tick would leak ~800 MB a day at real time. These
-        # two live as long as the world: one pymunk fills (clear() and refill reuses its
-        # array), one that points at our numpy velocities (pymunk must never grow that one).
+        # pymunk.batch.Buffer() mallocs arrays that nothing ever frees (pymunk 7.3): the
+        # struct, and whatever get_space_bodies grows them to (~39 kB for 1 000 bodies). One
+        # per tick leaked ~4 GB an hour at 1 000 robots in real time. These two live as long as
+        # the world: one pymunk fills (clear() and refill reuses its array), one that points at
+        # our numpy velocities (pymunk must never grow that one).
         self._read_buf = pymunk.batch.Buffer()
         self._write_buf = pymunk.batch.Buffer()
         self._velocities = np.zeros((0, 3), dtype=np.float64)
