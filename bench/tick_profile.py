@@ -73,7 +73,6 @@ def main(argv: list[str] | None = None) -> int:
 
     from protocol.control import SpawnRequest
     from protocol.keys import Keys
-    from simd import convert
     from simd.daemon import Daemon
     from simd.net import Bridge
     from simd.sim import SimConfig, Simulation
@@ -117,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
         sim._scan = _timed(table, "lidar + noise", sim._scan)  # type: ignore[method-assign]
         sim._sensor_model = _timed(table, "  noise", sim._sensor_model)  # type: ignore[method-assign]
         daemon._odom.encode = _timed(table, "odometry encode", daemon._odom.encode)  # type: ignore[method-assign]
-        convert.encode_scans = _timed(table, "scan encode", convert.encode_scans)
+        daemon._scans.encode = _timed(table, "scan encode", daemon._scans.encode)  # type: ignore[method-assign]
         bridge.publish = _timed(table, "zenoh puts", bridge.publish)  # type: ignore[method-assign]
         sim.command_many = _timed(table, "commands", sim.command_many)  # type: ignore[method-assign]
         step = _timed(table, "step (all)", sim.step)

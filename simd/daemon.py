@@ -32,6 +32,7 @@ from protocol.messages import Time
 from simd import convert
 from simd.net import Bridge, Request, reply_error, reply_ok
 from simd.odom_codec import OdometryEncoder
+from simd.scan_codec import ScanEncoder
 from simd.sim import Simulation, TickOutput
 
 log = logging.getLogger(__name__)
@@ -83,6 +84,7 @@ class Daemon:
         self._rtf_window: collections.deque[tuple[float, float]] = collections.deque(maxlen=64)
         self._world_info = convert.world_info(sim.world)
         self._odom = OdometryEncoder()
+        self._scans = ScanEncoder(sim.config.lidar)
         self._deleted: set[str] = set()  # namespaces deleted while a tick is half done
 
     # -- status ---------------------------------------------------------------------------
@@ -160,7 +162,7 @@ class Daemon:
         odom = self._odom.encode(
             out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
         )
-        scans = convert.encode_scans(out, sim.config.lidar)
+        scans = self._scans.encode(out.scan_namespaces, out.time, out.scans)
         self.bridge.publish(out.namespaces, odom, out.scan_namespaces, scans)
         self._rtf_window.append((time.monotonic(), out.time))
         if out.tick % CLOCK_EVERY == 0:
@@ -229,6 +231,7 @@ class Daemon:
         last = self.sim.delete(d.name)
         self.bridge.remove_robot(last.namespace)
         self._odom.forget(last.namespace)
+        self._scans.forget(last.namespace)
         self._deleted.add(last.namespace)
         log.info("deleted %s", last.name)
         return convert.robot_record(last, self.keys)

@@ -89,6 +89,9 @@ class Bridge:
         self.dropped_commands = 0
         self._twist = msgspec.msgpack.Decoder(Twist)
         self._odom_pub: dict[str, zenoh.Publisher] = {}
+        # the put methods of the odometry publishers in the order of the last tick's namespaces:
+        # looked up once per fleet change instead of once per robot per tick
+        self._odom_puts: tuple[list[str], list[Any]] = ([], [])
         self._scan_pub: dict[str, zenoh.Publisher] = {}
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
         self.latest_odom: dict[str, bytes] = {}
@@ -189,6 +192,7 @@ class Bridge:
             k.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
         )
         self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
+        self._odom_puts = ([], [])
 
     def remove_robot(self, ns: str) -> None:
         for table in (self._odom_pub, self._scan_pub):
@@ -200,6 +204,7 @@ class Bridge:
             tok.undeclare()
         self.latest_odom.pop(ns, None)
         self.latest_scan.pop(ns, None)
+        self._odom_puts = ([], [])
 
     def publish(
         self,
@@ -209,9 +214,12 @@ class Bridge:
         scans: list[bytes],
     ) -> None:
         """Put one tick's messages back to back (bursts amortise zenoh's wake-ups)."""
-        pubs = self._odom_pub
-        for ns, data in zip(namespaces, odom, strict=True):
-            pubs[ns].put(data)
+        layout, puts = self._odom_puts
+        if namespaces != layout:  # cheap when equal: the simulation hands out the same list
+            puts = [self._odom_pub[ns].put for ns in namespaces]
+            self._odom_puts = (list(namespaces), puts)
+        for put, data in zip(puts, odom, strict=True):
+            put(data)
         spubs = self._scan_pub
         for ns, data in zip(scan_namespaces, scans, strict=True):
             spubs[ns].put(data)

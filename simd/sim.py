@@ -367,7 +367,7 @@ class Simulation:
             linear_x=self._vx,
             linear_y=self._vy,
             angular_z=self._wz,
-            scan_namespaces=[self._robots[i].namespace for i in due],
+            scan_namespaces=[self._namespaces[i] for i in due.tolist()],
             scans=scans,
         )
 
