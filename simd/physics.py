@@ -67,6 +67,7 @@ class Physics:
         self._read_buf = pymunk.batch.Buffer()
         self._write_buf = pymunk.batch.Buffer()
         self._velocities = np.zeros((0, 3), dtype=np.float64)
+        self._in_order = False
 
     # -- robots -------------------------------------------------------------------------
 
@@ -155,6 +156,11 @@ class Physics:
             self._rows_n = len(rids)
             self._n_iter = len(ids)
             self._velocities = np.zeros((len(ids), 3), dtype=np.float64)  # bodies not ours stay 0
+            self._write_buf.set_float_buf(self._velocities.reshape(-1))  # pymunk reads it in place
+            # usually pymunk iterates our robots in our order first, then the static body (until
+            # a delete reorders them): then the rows are plain slices
+            n = len(rids)
+            self._in_order = bool(np.array_equal(rows[:n], np.arange(n)) and np.all(rows[n:] < 0))
             self._order_dirty = False
         return self._rows_cache
 
@@ -163,13 +169,15 @@ class Physics:
         rows, ok = self._rows(rids)
         if self._n_iter:
             out = self._velocities
-            r = rows[ok]
-            out[ok, 0] = vx[r]
-            out[ok, 1] = vy[r]
-            out[ok, 2] = w[r]
-            buf = self._write_buf
-            buf.set_float_buf(out.reshape(-1))
-            pymunk.batch.set_space_bodies(self.space, _SET_FIELDS, buf)
+            if self._in_order:
+                n = len(rids)
+                out[:n, 0], out[:n, 1], out[:n, 2] = vx, vy, w
+            else:
+                r = rows[ok]
+                out[ok, 0] = vx[r]
+                out[ok, 1] = vy[r]
+                out[ok, 2] = w[r]
+            pymunk.batch.set_space_bodies(self.space, _SET_FIELDS, self._write_buf)
         h = dt / self.substeps
         for _ in range(self.substeps):
             self.space.step(h)
@@ -177,16 +185,18 @@ class Physics:
     def poses(self, rids: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
         """Positions and headings of the robots, rows aligned with ``rids``."""
         n = len(rids)
-        x = np.zeros(n)
-        y = np.zeros(n)
-        a = np.zeros(n)
         if not n:
-            return x, y, a
+            return np.zeros(0), np.zeros(0), np.zeros(0)
         rows, ok = self._rows(rids)
         buf = self._read_buf
         buf.clear()
         pymunk.batch.get_space_bodies(self.space, _GET_FIELDS, buf)
         data = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
+        if self._in_order:
+            return data[:n, 0].copy(), data[:n, 1].copy(), data[:n, 2].copy()
+        x = np.zeros(n)
+        y = np.zeros(n)
+        a = np.zeros(n)
         r = rows[ok]
         x[r] = data[ok, 0]
         y[r] = data[ok, 1]

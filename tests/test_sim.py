@@ -210,3 +210,22 @@ def test_physics_does_not_leak_memory_per_tick() -> None:
     grown = _rss_bytes() - before
     # one Buffer per call would leak ~21 MB here (one robot; ~39 kB a call at 1 000)
     assert grown < 3_000_000, f"RSS grew by {grown / 1e6:.1f} MB over {ticks} ticks"
+
+
+def test_poses_and_commands_follow_the_right_robots_after_a_delete() -> None:
+    """pymunk reorders its bodies when one is removed; rows must still match robots."""
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, cmd_timeout=0))
+    spots = [(-1.5, -1.5), (-1.5, 1.5), (1.5, -1.5), (1.5, 1.5), (0.0, 0.0)]
+    robots = [sim.spawn(SpawnRequest(name=f"r{i}", x=x, y=y)) for i, (x, y) in enumerate(spots)]
+    sim.step()
+    assert sim.physics._in_order  # the fast path while nothing was deleted
+    sim.delete("r1")
+    sim.command(robots[3], 0.2, 0.0)
+    for _ in range(30):
+        sim.step()
+    assert not sim.physics._in_order  # ... and the general one after the delete
+    for i in (0, 2, 4):
+        s = sim.state(robots[i])
+        assert (s.x, s.y) == pytest.approx(spots[i], abs=1e-9)
+    moved = sim.state(robots[3])
+    assert moved.x > spots[3][0] + 0.1 and moved.y == pytest.approx(spots[3][1], abs=1e-6)
