@@ -116,11 +116,21 @@ def evaluate_targets(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
     )
     r = find(100, "rtf0")
     m = (r or {}).get("measure") or {}
+    fr = [m.get("odom_fraction"), m.get("scan_fraction")]
     out.append(
         {
-            "target": "2: 100 robots with --rtf 0: RTF ≥ 20",
-            "measured": f"RTF {fmt_f(m.get('rtf'), 1)} (median {fmt_f(m.get('rtf_median'), 1)})" if m else "not run",
-            "met": None if not m else bool(m.get("rtf") and m["rtf"] >= 20),
+            # as fast as possible, and still every message delivered (the bar of target 1):
+            # a daemon outrunning its subscribers is not faster for the people using it
+            "target": "2: 100 robots with --rtf 0: RTF ≥ 20 (counted with ≥ 99 % delivered)",
+            "measured": (
+                f"RTF {fmt_f(m.get('rtf'), 1)} (median {fmt_f(m.get('rtf_median'), 1)}); delivered odom "
+                f"{fmt_f(fr[0], 3)}, scan {fmt_f(fr[1], 3)}"
+            )
+            if m
+            else "not run",
+            "met": None
+            if not m
+            else bool(m.get("rtf") and m["rtf"] >= 20 and all(f is not None and f >= 0.99 for f in fr)),
         }
     )
     r = find(100, "rtf1")
