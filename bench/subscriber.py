@@ -48,18 +48,6 @@ def subscriber_main(endpoint: str, probe: str) -> int:
     scan: dict[str, int] = {}
     bad = [0]
 
-    def on_odom(sample: zenoh.Sample) -> None:  # only counts: this must never be the bottleneck
-        k = str(sample.key_expr)
-        odom[k] = odom.get(k, 0) + 1
-        if len(sample.payload) < ODOM_MIN_BYTES:
-            bad[0] += 1
-
-    def on_scan(sample: zenoh.Sample) -> None:
-        k = str(sample.key_expr)
-        scan[k] = scan.get(k, 0) + 1
-        if len(sample.payload) < SCAN_MIN_BYTES:
-            bad[0] += 1
-
     dec = msgspec.msgpack.Decoder(Odometry)
     moving: list[bool | None] = [None]
 
@@ -74,9 +62,26 @@ def subscriber_main(endpoint: str, probe: str) -> int:
     stop = threading.Event()
     session = zenoh.open(zenoh_config(endpoint, 30.0))
     try:
-        session.declare_subscriber(f"{PREFIX}/*/odom", on_odom)  # not fleet/**: that would wake the JSON mirrors
-        session.declare_subscriber(f"{PREFIX}/*/scan", on_scan)
-        session.declare_subscriber(f"{PREFIX}/{probe}/odom", on_probe)
+        probe_key = f"{PREFIX}/{probe}/odom"
+
+        def on_sample(sample: zenoh.Sample) -> None:  # only counts: this must never be the bottleneck
+            k = str(sample.key_expr)
+            if k.endswith("/odom"):
+                odom[k] = odom.get(k, 0) + 1
+                if len(sample.payload) < ODOM_MIN_BYTES:
+                    bad[0] += 1
+                if k == probe_key:
+                    on_probe(sample)
+            elif k.endswith("/scan"):
+                scan[k] = scan.get(k, 0) + 1
+                if len(sample.payload) < SCAN_MIN_BYTES:
+                    bad[0] += 1
+
+        # One subscription for everything: measured in this benchmark at 20x, it costs ~11 us of
+        # CPU a message against ~13.5 with one per topic and one for the probe, the difference
+        # between keeping up and not. P/*/* also brings cmd_vel (ignored here) but not the
+        # JSON mirrors (P/<ns>/odom/json), which P/** would wake.
+        session.declare_subscriber(f"{PREFIX}/*/*", on_sample)
 
         def report() -> None:
             while not stop.wait(1.0):
