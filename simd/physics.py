@@ -29,8 +29,9 @@ class Physics:
     def __init__(self, world: WorldGeometry, substeps: int = 2) -> None:
         self.space = pymunk.Space()
         # Contacts here are robots pushed by velocities set every tick, not stacks: 5 solver
-        # passes leave the same contact depths as 10 (wall 1.7 mm, head-on 2.9 mm, a pile of
-        # five robots 2.9 mm in all) and take ~0.07 ms (~5 %) off the tick of 100 wandering robots.
+        # passes leave the same contact depths as 10 (wall 1.7 mm, head-on 2.9 mm; five robots
+        # in a row pushing into a wall 0.6 mm in all, 6.9 mm with 10) and take ~0.07-0.1 ms
+        # off the tick of 100 wandering robots.
         self.space.iterations = 5
         # pymunk's defaults are tuned for pixels: 0.1 of allowed overlap would let a robot
         # sink 10 cm into a wall, and through a thin one. Work in metres.
@@ -72,22 +73,20 @@ class Physics:
     # -- robots -------------------------------------------------------------------------
 
     def _make_body(self, model: RobotModel) -> tuple[pymunk.Body, list[pymunk.Shape]]:
-        """A body with one convex collision shape: the hull of chassis and wheels.
-
-        The exact footprint (chassis box plus two wheel boxes) has a notch behind each wheel,
-        1.9 cm deep on a burger. Against walls and round pillars the hull touches exactly
-        where the footprint does (their first contact is an extreme vertex, and those are
-        the hull's); only a sharp corner pushed into a notch meets the hull earlier. One shape
-        instead of three makes contacts a third as many: robots pressing into walls and into
-        each other are most of pymunk's time (0.37 -> 0.25 ms per tick at 100 robots). The
-        lidar still sees the exact outline.
-        """
+        """A body with the exact footprint as two convex boxes (``RobotModel.collision_boxes``):
+        contacts among robots pressing into walls and each other are most of pymunk's time,
+        and two boxes make ~0.1 ms less of a 100-robot tick than chassis and two wheels."""
         body = pymunk.Body()
-        shape = pymunk.Poly(body, [tuple(p) for p in model.hull])
-        shape.mass = model.mass
-        shape.friction = 0.0
-        shape.collision_type = _ROBOT
-        return body, [shape]
+        boxes = model.collision_boxes()
+        areas = [(x1 - x0) * (y1 - y0) for x0, x1, y0, y1 in boxes]
+        shapes: list[pymunk.Shape] = []
+        for (x0, x1, y0, y1), area in zip(boxes, areas, strict=True):
+            s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+            s.mass = model.mass * area / sum(areas)
+            s.friction = 0.0
+            s.collision_type = _ROBOT
+            shapes.append(s)
+        return body, shapes
 
     def blocker(self, model: RobotModel, x: float, y: float, yaw: float) -> int | None:
         """What the footprint at this pose would overlap: -1 for static geometry, a robot

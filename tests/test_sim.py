@@ -229,3 +229,18 @@ def test_poses_and_commands_follow_the_right_robots_after_a_delete() -> None:
         assert (s.x, s.y) == pytest.approx(spots[i], abs=1e-9)
     moved = sim.state(robots[3])
     assert moved.x > spots[3][0] + 0.1 and moved.y == pytest.approx(spots[3][1], abs=1e-6)
+
+
+@pytest.mark.parametrize("model", ["burger", "waffle", "waffle_pi"])
+def test_collision_boxes_cover_exactly_the_footprint(model: str) -> None:
+    """Physics collides with two boxes; together they must be the outline the lidar sees."""
+    from shapely.ops import unary_union
+
+    from simd.models import MODELS
+
+    m = MODELS[model]
+    boxes = [Polygon([(x0, y0), (x1, y0), (x1, y1), (x0, y1)]) for x0, x1, y0, y1 in m.collision_boxes()]
+    union = unary_union(boxes)
+    outline = Polygon(m.outline)
+    assert union.symmetric_difference(outline).area < 1e-12
+    assert outline.area > 0.01
