@@ -1,11 +1,11 @@
 /*
- * simd._scannoise: the lidar sensor model of Simulation._sensor_model (simd/sim.py), compiled.
+ * simd._scannoise: the lidar sensor model of simd/sensor_model.py (its numpy reference), compiled.
  *
  * Why: the numpy version masks the raw ranges, draws one float32 standard normal per beam that
  * hit something (numpy's Generator.standard_normal, ~19 ns a value here), scales, adds and
  * clamps, with a temporary for every step: ~0.6 ms a tick for 100 scans of 360 beams.  This
  * module does the same work in one pass over the beams (four at a time with SSE2), with its own
- * generator and normal sampler: ~0.08 ms for the same batch.
+ * generator and normal sampler: ~0.08 ms for the same batch (~7x, quiet machine).
  *
  * apply(raw, out, range_min, range_max, stddev, seed) -> None
  *   raw        C-contiguous float32 buffer, any shape, read as n items in row-major order

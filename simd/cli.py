@@ -35,7 +35,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="world name (turtlebot3_world, turtlebot3_house, empty) or path to a world YAML file",
     )
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
-    p.add_argument("--seed", type=int, default=0, help="noise seed (default: %(default)s)")
+    p.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="noise seed (default: %(default)s); the same seed replays the same noise on the same build "
+        "(the compiled and the numpy noise draw different streams)",
+    )
     p.add_argument(
         "--rtf",
         type=float,

@@ -1,13 +1,15 @@
 """The lidar's sensor model: what Gazebo's RaySensor does to the ranges the rays found.
 
 A raw range that is not below ``range_max`` (nothing in range, or NaN) becomes +inf; every
-other beam gets Gaussian noise N(0, stddev) and is clamped to [range_min, range_max]. Noise is
+other beam gets Gaussian noise N(0, stddev) and is clamped to [range_min, range_max] (with
+noise off, stddev 0, hits pass unchanged, as before the C version existed). Noise is
 drawn only for the beams that hit something, in row-major order, so the same seed and the same
 hits give the same scans.
 
 Two versions: the numpy one below is the reference, and the compiled ``simd._scannoise`` does
-the same in one pass with its own generator (xoshiro256++ and a ziggurat sampler), ~7x faster
-on a batch of 100 scans (numpy's normal sampler alone costs ~19 ns a value here). The masking
+the same in one pass with its own generator (xoshiro256++ and a ziggurat sampler): ~7x faster
+on a batch of 100 scans on a quiet machine, ~5x under load (numpy's normal sampler alone costs
+~19 ns a value here). The masking
 and clamping are the same to the bit; the noise values are not, because the two paths draw
 from different generators. Each path is deterministic for a given simulation seed.
 ``FLEETSIM_NATIVE`` chooses (simd/native.py).

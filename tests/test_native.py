@@ -184,6 +184,8 @@ def test_status_reports_the_path_each_loop_took() -> None:
     assert all(v.startswith("numpy (FLEETSIM_NATIVE=numpy") for v in off.values()), off
     lidar_only = paths_in_a_fresh_process(FLEETSIM_LIDAR="numpy")
     assert lidar_only["raycast"].startswith("numpy") and lidar_only["drive"] == lidar_only["odompack"] == "native"
+    if sensor_model._native is not None:
+        assert lidar_only["scannoise"] == "native" and off["scannoise"].startswith("numpy (FLEETSIM_NATIVE")
 
 
 @needs_drive

@@ -1,7 +1,7 @@
 """The compiled lidar sensor model (simd/_scannoise.c).
 
 Without noise it must equal the numpy reference bit for bit (the noise-off path of the sensor
-model, Simulation._sensor_model, copied below so that this file tests the module alone).  With
+model, simd/sensor_model.py, copied below so that this file tests the module alone).  With
 noise its stream is its own (xoshiro256++ and a ziggurat, not numpy's generator), so the tests
 check the masking and clamping exactly and the noise statistically over ~1M draws: moments,
 tail fractions, a chi-square on 400 equiprobable bins, a Kolmogorov-Smirnov distance against
@@ -38,7 +38,7 @@ SPECIALS = [np.inf, -np.inf, np.nan, RMAX, BELOW_MAX, ABOVE_MAX, RMIN, 0.05, 0.0
 
 
 def reference(raw: F32, range_min: float, range_max: float) -> F32:
-    """Simulation._sensor_model with noise off (simd/sim.py)."""
+    """The numpy sensor model with noise off (simd/sensor_model.py)."""
     out = np.array(raw, dtype=np.float32, order="C", copy=True)
     flat = out.reshape(-1)
     hit = np.flatnonzero(flat < range_max)  # inf and NaN compare false
