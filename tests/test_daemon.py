@@ -334,7 +334,20 @@ def test_spawn_and_delete_churn_while_running(daemon_factory: Callable[..., Daem
         odom.clear()
         time.sleep(0.5)
         seen = {k.split("/")[1] for k in odom.key_set()}
+        # the same name once more, for good, deleted and spawned again between two ticks (so
+        # the fleet's namespace list is the same before and after): its odometry must flow on
+        # its new publisher, not on the one undeclared with the first
+        c.spawn("churn", x=5.0, y=5.0)
+        c.pause()
+        c.delete("churn")
+        c.spawn("churn", x=5.0, y=5.0)
+        c.resume()
+        time.sleep(0.3)
+        odom.clear()
+        time.sleep(0.5)
+        again = {k.split("/")[1] for k in odom.key_set()}
     assert "churn" not in seen and not ({f"r{i}" for i in range(6)} & seen)
     assert seen == {f"r{i}" for i in range(6, 40)}
+    assert again == seen | {"churn"}
     assert d.alive()
     assert "failed" not in d.log() and "Traceback" not in d.log()
