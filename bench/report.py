@@ -114,16 +114,25 @@ def evaluate_targets(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             "met": None if not m else bool(rtf and rtf >= 0.98 and all(f is not None and f >= 0.99 for f in fr)),
         }
     )
-    r = find(100, "rtf0")
-    m = (r or {}).get("measure") or {}
+    # --rtf 0 is run several times (the machine's speed swings between runs): judged on the median run
+    fast = sorted(
+        (r for r in runs if r["n"] == 100 and r["mode"] == "rtf0" and ((r.get("measure") or {}).get("rtf"))),
+        key=lambda r: r["measure"]["rtf"],
+    )
+    m = fast[(len(fast) - 1) // 2]["measure"] if fast else {}
     fr = [m.get("odom_fraction"), m.get("scan_fraction")]
+    of_runs = (
+        f" (the median of {len(fast)} runs: {', '.join(fmt_f(r['measure']['rtf'], 1) for r in fast)})"
+        if len(fast) > 1
+        else f" (1 s windows: median {fmt_f(m.get('rtf_median'), 1)})"
+    )
     out.append(
         {
             # as fast as possible, and still every message delivered (the bar of target 1):
             # a daemon outrunning its subscribers is not faster for the people using it
             "target": "2: 100 robots with --rtf 0: RTF ≥ 20 (counted with ≥ 99 % delivered)",
             "measured": (
-                f"RTF {fmt_f(m.get('rtf'), 1)} (median {fmt_f(m.get('rtf_median'), 1)}); delivered odom "
+                f"RTF {fmt_f(m.get('rtf'), 1)}{of_runs}; delivered in that run: odom "
                 f"{fmt_f(fr[0], 3)}, scan {fmt_f(fr[1], 3)}"
             )
             if m
@@ -315,11 +324,13 @@ def plot(res: dict[str, Any], path: Path) -> bool:
         ax2.plot(ns, scan, "s--", color="C1", label="scans (5 Hz per robot)")
         for x, y in zip(ns, odom, strict=True):
             ax2.annotate(f"{y:.3f}", (x, y), textcoords="offset points", xytext=(6, 6), fontsize=8, color="C0")
-    for r in fast:
+    for k, r in enumerate(fast):
         v = r["measure"]["rtf"]
-        ax1.plot([r["n"]], [v], "D", color="C3", label=f"--rtf 0 (as fast as possible), N={r['n']}")
+        first = k == 0  # one legend entry for all the --rtf 0 runs
+        ax1.plot([r["n"]], [v], "D", color="C3", label=f"--rtf 0 (as fast as possible), N={r['n']}" if first else None)
         ax1.annotate(f"{v:.1f}", (r["n"], v), textcoords="offset points", xytext=(8, 0), va="center", color="C3")
-        ax2.plot([r["n"]], [r["measure"]["odom_fraction"]], "D", color="C3", label=f"odometry at --rtf 0, N={r['n']}")
+        odom = r["measure"]["odom_fraction"]
+        ax2.plot([r["n"]], [odom], "D", color="C3", label=f"odometry at --rtf 0, N={r['n']}" if first else None)
     ax1.axhline(1.0, color="k", lw=1, ls=":", label="RTF = 1 (real time; target at N = 1000)")
     if fast:
         ax1.axhline(20.0, color="C3", lw=1, ls=":", label="RTF = 20 (target at --rtf 0, N = 100)")

@@ -78,3 +78,22 @@ def test_quick_benchmark_writes_every_output(tmp_path: Path) -> None:
         assert row in md, row
     png = (out / "scaling.png").read_bytes()
     assert png.startswith(b"\x89PNG") and len(png) > 10_000
+
+
+def test_target_2_is_judged_on_the_median_of_the_fast_runs() -> None:
+    """The verdict logic alone, on recorded runs: the median run's RTF and its delivery."""
+    from bench.report import evaluate_targets
+
+    def run(rtf: float, odom: float) -> dict[str, object]:
+        return {"n": 100, "mode": "rtf0", "measure": {"rtf": rtf, "odom_fraction": odom, "scan_fraction": 1.0}}
+
+    def verdict(*runs: dict[str, object]) -> dict[str, object]:
+        return next(t for t in evaluate_targets(list(runs)) if str(t["target"]).startswith("2:"))
+
+    fast_but_dropping = verdict(run(17.0, 1.0), run(22.0, 0.97), run(25.0, 1.0))
+    assert fast_but_dropping["met"] is False and "RTF 22.0 (the median of 3 runs: 17.0, 22.0, 25.0)" in str(
+        fast_but_dropping["measured"]
+    )
+    assert verdict(run(19.0, 1.0), run(21.0, 0.995), run(30.0, 0.5))["met"] is True
+    assert verdict(run(15.0, 1.0), run(19.9, 1.0), run(40.0, 1.0))["met"] is False
+    assert verdict()["met"] is None
