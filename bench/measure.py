@@ -35,6 +35,17 @@ def proc_cpu_seconds(pid: int) -> float | None:
         return None
 
 
+def cpu_ticks() -> tuple[int, int] | None:
+    """(steal, total) jiffies of all CPUs since boot (/proc/stat): on a virtual machine the
+    hypervisor gives some of our CPU time to other guests, and that shows only here."""
+    try:
+        with open("/proc/stat") as f:
+            values = [int(v) for v in f.readline().split()[1:]]
+        return (values[7] if len(values) > 7 else 0), sum(values[:8])
+    except (OSError, ValueError):
+        return None
+
+
 def proc_status_kb(pid: int, key: str) -> int | None:
     """A ``kB`` line of /proc/<pid>/status, e.g. VmRSS or VmHWM."""
     try:
@@ -180,6 +191,7 @@ def measure_window(ctx: Context, duration: float, progress: Progress) -> dict[st
     t0 = s0["t"]
     cpu0, scpu0, me0 = proc_cpu_seconds(daemon.pid), proc_cpu_seconds(sub.pid), time.process_time()
     ss0 = thread_schedstat(daemon.pid)  # the daemon's main thread runs the simulation loop
+    st0 = cpu_ticks()
     while (el := time.monotonic() - t0) < duration:
         _check_alive(ctx)
         o, sc = sub.rates()
@@ -192,6 +204,7 @@ def measure_window(ctx: Context, duration: float, progress: Progress) -> dict[st
     t1 = s1["t"]
     cpu1, scpu1, me1 = proc_cpu_seconds(daemon.pid), proc_cpu_seconds(sub.pid), time.process_time()
     ss1 = thread_schedstat(daemon.pid)
+    st1 = cpu_ticks()
     deadline = time.monotonic() + 3.0
     while time.monotonic() < deadline and not (fleet.clock_samples and fleet.clock_samples[-1][0] >= t1):
         time.sleep(0.02)
@@ -249,6 +262,8 @@ def measure_window(ctx: Context, duration: float, progress: Progress) -> dict[st
         "sim_thread_cpu_pct": 100 * (ss1[0] - ss0[0]) / wall if ss0 and ss1 else None,
         "sim_thread_wait_pct": 100 * (ss1[1] - ss0[1]) / wall if ss0 and ss1 else None,
         "loadavg_1min": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+        # share of all CPUs' time the hypervisor gave to other guests during the window
+        "steal_pct": 100 * (st1[0] - st0[0]) / (st1[1] - st0[1]) if st0 and st1 and st1[1] > st0[1] else None,
     }
     progress.done(
         f"{ctx.label} measured {wall:.1f} s: rtf {fmt_f(out['rtf'])} (median {fmt_f(out['rtf_median'])}), "

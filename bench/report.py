@@ -231,11 +231,12 @@ def results_markdown(res: dict[str, Any]) -> str:
         "",
         "The daemon's simulation loop runs on its main thread; *waiting* is the time that thread was ready "
         "to run but had no CPU (other load on the machine): if on-CPU + waiting is near 100 % the loop is "
-        "CPU-bound and starved, not idle.",
+        "CPU-bound and starved, not idle. *Stolen* is the share of all CPUs' time the hypervisor gave to "
+        "other guests during the window (/proc/stat): a slow spell of a shared machine shows there.",
         "",
         "| N | target RTF | daemon process | sim thread on a CPU | sim thread waiting for a CPU "
-        "| subscriber process | benchmark process | load average (1 min) |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "| subscriber process | benchmark process | load average (1 min) | stolen |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in runs:
         m = r.get("measure") or {}
@@ -243,7 +244,7 @@ def results_markdown(res: dict[str, Any]) -> str:
             f"| {r['n']} | {_target(r)} | {fmt_pct(m.get('daemon_cpu_pct'))} "
             f"| {fmt_pct(m.get('sim_thread_cpu_pct'))} | {fmt_pct(m.get('sim_thread_wait_pct'))} "
             f"| {fmt_pct(m.get('subscriber_cpu_pct'))} | {fmt_pct(m.get('bench_cpu_pct'))} "
-            f"| {fmt_f(m.get('loadavg_1min'), 1)} |"
+            f"| {fmt_f(m.get('loadavg_1min'), 1)} | {fmt_pct(m.get('steal_pct'))} |"
         )
     lines += [
         "",

@@ -24,6 +24,7 @@ MEASURED = (
     "scan_fraction",
     "beams_per_s",
     "daemon_cpu_pct",
+    "steal_pct",
 )
 
 
