@@ -209,7 +209,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--spawn-concurrency", type=int, default=16, help="spawn requests in flight (default 16)")
     p.add_argument("--latency-reps", type=int, default=None, help="cmd_vel→odom repetitions (default 20; quick 5)")
-    p.add_argument("--extra-spawns", type=int, default=None, help="one-at-a-time spawn/deletes (default 200; quick 10)")
+    p.add_argument("--extra-spawns", type=int, default=None, help="one-at-a-time spawn/deletes (default 500; quick 10)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="bench-out", help="output directory (default: %(default)s)")
     p.add_argument("--no-plot", action="store_true", help="do not draw scaling.png")
@@ -238,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         settle=args.settle if args.settle is not None else (1.0 if args.quick else 3.0),
         spawn_concurrency=max(1, args.spawn_concurrency),
         latency_reps=args.latency_reps if args.latency_reps is not None else (5 if args.quick else 20),
-        extra_spawns=args.extra_spawns if args.extra_spawns is not None else (10 if args.quick else 200),
+        extra_spawns=args.extra_spawns if args.extra_spawns is not None else (10 if args.quick else 500),
         seed=args.seed,
         simd_args=shlex.split(args.simd_args),
     )
