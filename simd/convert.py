@@ -98,7 +98,8 @@ def odometry(ns: str, stamp: Time, x: float, y: float, yaw: float, vx: float, vy
 
 
 def encode_scans(out: TickOutput, spec: LidarSpec) -> list[bytes]:
-    """One MessagePack LaserScan per scan in ``out.scan_namespaces`` order."""
+    """One MessagePack LaserScan per scan in ``out.scan_namespaces`` order, struct by struct:
+    the reference that the daemon's byte templates (simd/scan_codec.py) are tested against."""
     stamp = Time.from_seconds(out.time)
     enc = _encoder.encode
     ranges = out.scans.astype("<f4", copy=False)
