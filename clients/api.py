@@ -36,7 +36,7 @@ from protocol.control import (
 )
 from protocol.errors import ErrorCode, ErrorReply, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
-from protocol.messages import LaserScan, Odometry, Twist, Vector3
+from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
 from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions
 
 T = TypeVar("T")
@@ -303,6 +303,52 @@ class FleetClient:
         for _, msg in self.scan_stream(namespace, timeout):
             return msg
         raise FleetError(ErrorCode.TIMEOUT, f"no scan from {namespace!r} within {timeout:g} s")
+
+    # -- the whole fleet, one message a tick --------------------------------------------------
+
+    def _subscribe_fleet(self, key: str, type_: type[T], callback: Callable[[T], None]) -> Subscription:
+        dec = msgspec.msgpack.Decoder(type_)
+
+        def handler(sample: zenoh.Sample) -> None:
+            try:
+                msg = dec.decode(sample.payload.to_bytes())
+            except msgspec.DecodeError:
+                return
+            callback(msg)
+
+        sub = Subscription(self.session.declare_subscriber(key, handler))
+        self._subs.append(sub)
+        return sub
+
+    def on_fleet_odom(self, callback: Callable[[FleetOdometry], None]) -> Subscription:
+        """``callback(fleet_odom)`` once a tick with every robot's odometry (``P/odom``).
+
+        One message a tick instead of one per robot: the way to follow a whole fleet, and the
+        only one that keeps up with a hundred robots at 20x real time in Python.
+        ``fleet_odom.array("x")`` is a numpy view, row ``i`` being ``fleet_odom.namespaces[i]``.
+        """
+        return self._subscribe_fleet(self.keys.fleet_odom, FleetOdometry, callback)
+
+    def on_fleet_scans(self, callback: Callable[[FleetScans], None]) -> Subscription:
+        """``callback(fleet_scans)`` once a tick with the scans taken in it (``P/scan``);
+        ``fleet_scans.ranges_array()`` has one row per namespace."""
+        return self._subscribe_fleet(self.keys.fleet_scan, FleetScans, callback)
+
+    def wait_fleet_odom(self, timeout: float = 5.0) -> FleetOdometry:
+        """The next tick's odometry of the whole fleet."""
+        q: queue.Queue[FleetOdometry] = queue.Queue(maxsize=1)
+
+        def put(msg: FleetOdometry) -> None:
+            try:
+                q.put_nowait(msg)
+            except queue.Full:
+                pass
+
+        with self.on_fleet_odom(put):
+            try:
+                return q.get(timeout=timeout)
+            except queue.Empty:
+                raise FleetError(ErrorCode.TIMEOUT, f"no fleet odometry within {timeout:g} s") from None
 
     def latest_odom(self, namespace: str) -> Odometry | None:
         """The daemon's most recent odometry of a robot (a query, no subscription)."""

@@ -25,6 +25,8 @@ from protocol.control import (
 from protocol.errors import ErrorCode, ErrorReply, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import (
+    FleetOdometry,
+    FleetScans,
     Header,
     LaserScan,
     Odometry,
@@ -52,6 +54,8 @@ __all__ = [
     "ErrorCode",
     "ErrorReply",
     "FleetError",
+    "FleetOdometry",
+    "FleetScans",
     "Frames",
     "Header",
     "Keys",

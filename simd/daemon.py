@@ -30,6 +30,7 @@ from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
 from protocol.messages import Time
 from simd import convert
+from simd.fleet_codec import encode_fleet_odometry, encode_fleet_scans
 from simd.net import Bridge, Request, reply_error, reply_ok
 from simd.odom_codec import OdometryEncoder
 from simd.scan_codec import ScanEncoder
@@ -159,6 +160,7 @@ class Daemon:
                 return out
             if deleted:
                 out = _without(out, deleted)
+        self._publish_fleet_topics(out)
         odom = self._odom.encode(
             out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
         )
@@ -168,6 +170,20 @@ class Daemon:
         if out.tick % CLOCK_EVERY == 0:
             self._publish_clock()
         return out
+
+    def _publish_fleet_topics(self, out: TickOutput) -> None:
+        """The tick as one message per topic, for whoever follows the whole fleet (if anyone)."""
+        bridge = self.bridge
+        if out.namespaces and bridge.wants_fleet_odom():
+            bridge.fleet_odom_pub.put(
+                encode_fleet_odometry(
+                    out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
+                )
+            )
+        if out.scan_namespaces and bridge.wants_fleet_scan():
+            bridge.fleet_scan_pub.put(
+                encode_fleet_scans(self.sim.config.lidar, out.scan_namespaces, out.time, out.scans)
+            )
 
     def _serve_pending(self) -> set[str]:
         """Serve every queued request; return the namespaces deleted meanwhile."""

@@ -115,6 +115,12 @@ class Bridge:
             session.declare_queryable(f"{k.prefix}/*/scan", self._latest_answerer(self.latest_scan, "scan"))
         )
         self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
+        # The fleet topics (one message a tick for the whole fleet) are built only while their
+        # publisher has a match, like the JSON mirrors below; scans at the scans' priority.
+        self.fleet_odom_pub = session.declare_publisher(k.fleet_odom, encoding="application/msgpack")
+        self.fleet_scan_pub = session.declare_publisher(
+            k.fleet_scan, encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+        )
         # JSON mirrors for people with zenoh's CLI (whose subscriber cannot read MessagePack).
         # These wildcard publishers only probe for subscribers: the mirrors cost nothing
         # until somebody subscribes to a P/<ns>/odom/json or P/<ns>/scan/json key.
@@ -205,6 +211,14 @@ class Bridge:
         self.latest_odom.pop(ns, None)
         self.latest_scan.pop(ns, None)
         self._odom_puts = ([], [])
+
+    def wants_fleet_odom(self) -> bool:
+        """True while somebody subscribes to ``P/odom``."""
+        return bool(self.fleet_odom_pub.matching_status.matching)  # type: ignore[attr-defined]  # stub says bool
+
+    def wants_fleet_scan(self) -> bool:
+        """True while somebody subscribes to ``P/scan``."""
+        return bool(self.fleet_scan_pub.matching_status.matching)  # type: ignore[attr-defined]
 
     def publish(
         self,

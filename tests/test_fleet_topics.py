@@ -1,0 +1,178 @@
+"""The fleet topics ``P/odom`` and ``P/scan``: one message a tick for the whole fleet.
+
+They must say exactly what the per-robot topics say for the same tick, follow the fleet as
+robots come and go, and cost nothing while nobody listens.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Callable
+
+import msgspec
+import numpy as np
+import pytest
+import zenoh
+
+from clients import wait_until
+from protocol import FleetOdometry, FleetScans, Keys, LaserScan, Odometry
+from simd.fleet_codec import encode_fleet_odometry, encode_fleet_scans
+from simd.lidar import LidarSpec
+from simd.net import Bridge
+from tests.conftest import Daemon, free_port
+from tests.zraw import client_config
+
+# -- the messages ---------------------------------------------------------------------------
+
+
+def test_fleet_odometry_round_trip_and_named_fields() -> None:
+    rng = np.random.default_rng(3)
+    cols = [rng.normal(size=4) for _ in range(6)]
+    data = encode_fleet_odometry(["a", "b", "c", "d"], 12.5, *cols)
+    msg = msgspec.msgpack.decode(data, type=FleetOdometry)
+    assert msg.namespaces == ["a", "b", "c", "d"]
+    assert msg.stamp.sec == 12 and msg.stamp.nanosec == 500_000_000
+    for name, col in zip(("x", "y", "yaw", "linear_x", "linear_y", "angular_z"), cols, strict=True):
+        assert msg.array(name).tolist() == col.tolist()  # to the bit
+    # a map with named fields, readable without our structs (any language)
+    raw = msgspec.msgpack.decode(data)
+    assert set(raw) >= {"stamp", "namespaces", "x", "y", "yaw", "linear_x", "linear_y", "angular_z"}
+    with pytest.raises(ValueError, match="no column 'z'"):
+        msg.array("z")
+
+
+def test_fleet_odometry_refuses_columns_of_another_length() -> None:
+    a = np.zeros(3)
+    with pytest.raises(ValueError, match="2 namespaces"):
+        encode_fleet_odometry(["a", "b"], 0.0, a, a, a, a, a, a)
+
+
+def test_fleet_scans_round_trip_and_shape_checks() -> None:
+    spec = LidarSpec()
+    rows = np.random.default_rng(1).uniform(0.12, 3.5, size=(3, spec.samples)).astype(np.float32)
+    rows[1, 7] = np.inf
+    msg = msgspec.msgpack.decode(encode_fleet_scans(spec, ["a", "b", "c"], 0.2, rows), type=FleetScans)
+    assert msg.namespaces == ["a", "b", "c"] and msg.beams == spec.samples
+    assert (msg.angle_min, msg.angle_max, msg.range_min, msg.range_max) == (
+        spec.angle_min, spec.angle_max, spec.range_min, spec.range_max,
+    )  # fmt: skip
+    got = msg.ranges_array()
+    assert got.shape == (3, spec.samples) and got.tobytes() == rows.tobytes()
+    with pytest.raises(ValueError, match="2 namespaces"):
+        encode_fleet_scans(spec, ["a", "b"], 0.2, rows)
+    broken = msgspec.structs.replace(msg, beams=100)
+    with pytest.raises(ValueError, match="rows of 100 beams"):
+        broken.ranges_array()
+
+
+# -- the daemon -----------------------------------------------------------------------------
+
+
+def _collect(session: zenoh.Session, key: str, out: list[bytes], lock: threading.Lock) -> zenoh.Subscriber:
+    def on(sample: zenoh.Sample) -> None:
+        with lock:
+            out.append(sample.payload.to_bytes())
+
+    return session.declare_subscriber(key, on)
+
+
+def test_each_tick_of_the_fleet_topics_equals_the_robots_own_messages(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
+    d = daemon_factory("--lockstep", "--seed", "2")
+    c = d.client()
+    names = ["r0", "r1", "r2"]
+    for i, n in enumerate(names):
+        c.spawn(n, x=-2.0 + 1.2 * i, y=-0.5, model=("burger", "waffle", "waffle_pi")[i])
+    lock = threading.Lock()
+    fleet_odom: list[bytes] = []
+    fleet_scan: list[bytes] = []
+    odom: list[tuple[str, Odometry]] = []
+    scans: list[tuple[str, LaserScan]] = []
+    with zenoh.open(client_config(d.endpoint)) as s:
+        _collect(s, "fleet/odom", fleet_odom, lock)
+        _collect(s, "fleet/scan", fleet_scan, lock)
+        c.on_odom("*", lambda ns, m: odom.append((ns, m)))
+        c.on_scan("*", lambda ns, m: scans.append((ns, m)))
+        for k in range(12):
+            c.step(1, cmd_vel={n: (0.2, 0.8 * math.sin(k + i)) for i, n in enumerate(names)})
+        assert wait_until(lambda: len(fleet_odom) == 12 and len(odom) == 36 and len(scans) == 6, 3.0)
+        assert wait_until(lambda: len(fleet_scan) >= 2, 1.0)
+
+        by_stamp: dict[tuple[int, int, str], Odometry] = {
+            (m.header.stamp.sec, m.header.stamp.nanosec, ns): m for ns, m in odom
+        }
+        moved = 0
+        for data in fleet_odom:
+            f = msgspec.msgpack.decode(data, type=FleetOdometry)
+            assert sorted(f.namespaces) == names
+            for i, ns in enumerate(f.namespaces):
+                m = by_stamp[(f.stamp.sec, f.stamp.nanosec, ns)]
+                p, tw = m.pose.pose, m.twist.twist
+                assert f.array("x")[i] == p.position.x and f.array("y")[i] == p.position.y
+                assert f.array("yaw")[i] == pytest.approx(p.orientation.yaw(), abs=1e-12)
+                assert f.array("linear_x")[i] == tw.linear.x and f.array("linear_y")[i] == tw.linear.y
+                assert f.array("angular_z")[i] == tw.angular.z
+                moved += abs(tw.linear.x) > 0
+        assert moved > 0  # the comparison saw robots in motion, not only zeros
+
+        scan_by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec, ns): m for ns, m in scans}
+        seen = 0
+        for data in fleet_scan:
+            f = msgspec.msgpack.decode(data, type=FleetScans)
+            rows = f.ranges_array()
+            for i, ns in enumerate(f.namespaces):
+                m = scan_by_stamp[(f.stamp.sec, f.stamp.nanosec, ns)]
+                assert rows[i].tobytes() == m.ranges
+                assert (f.angle_increment, f.range_max) == (m.angle_increment, m.range_max)
+                seen += 1
+        assert seen == 6  # every robot's scan of the 12 ticks (5 Hz of a 30 Hz tick: once each in 6)
+
+        # a deleted robot leaves the next tick's message; a new one joins it
+        c.delete("r1")
+        c.spawn("late", x=-0.5, y=2.0)
+        c.step(1)
+        assert wait_until(lambda: len(fleet_odom) == 13, 2.0)
+        last = msgspec.msgpack.decode(fleet_odom[-1], type=FleetOdometry)
+        assert sorted(last.namespaces) == ["late", "r0", "r2"]
+        assert last.array("x")[last.namespaces.index("late")] == -0.5
+
+
+def test_client_api_follows_the_fleet(daemon: Daemon) -> None:
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.spawn("tb3_1", 0.5, -2.0)
+    f = c.wait_fleet_odom()
+    assert sorted(f.namespaces) == ["tb3_0", "tb3_1"]
+    i = f.namespaces.index("tb3_1")
+    assert (f.array("x")[i], f.array("y")[i]) == pytest.approx((0.5, -2.0), abs=1e-3)
+    got: list[FleetScans] = []
+    with c.on_fleet_scans(got.append):
+        assert wait_until(lambda: {ns for m in got for ns in m.namespaces} == {"tb3_0", "tb3_1"}, 2.0)
+    rows = got[0].ranges_array()
+    assert rows.shape == (len(got[0].namespaces), 360)
+    assert np.all(np.isinf(rows) | ((rows >= 0.12) & (rows <= 3.5)))
+
+
+def test_fleet_topics_are_built_only_while_somebody_subscribes() -> None:
+    """The daemon asks zenoh whether anyone matches before encoding a fleet message."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as daemon_side:
+        bridge = Bridge(daemon_side, Keys())
+        try:
+            assert not bridge.wants_fleet_odom() and not bridge.wants_fleet_scan()
+            with zenoh.open(client_config(f"tcp/127.0.0.1:{port}")) as user:
+                sub = user.declare_subscriber("fleet/odom", lambda s: None)
+                assert wait_until(bridge.wants_fleet_odom, 3.0)
+                assert not bridge.wants_fleet_scan()  # only what is asked for
+                per_robot = user.declare_subscriber("fleet/*/odom", lambda s: None)
+                sub.undeclare()
+                assert wait_until(lambda: not bridge.wants_fleet_odom(), 3.0)  # P/*/odom is not P/odom
+                per_robot.undeclare()
+        finally:
+            bridge.close()
