@@ -55,13 +55,22 @@ from bench.wire import PREFIX
 
 
 def run_size(
-    n: int, rtf: float, s: Settings, tmp: Path, progress: Progress, sink: list[dict[str, Any]]
+    n: int,
+    rtf: float,
+    s: Settings,
+    tmp: Path,
+    progress: Progress,
+    sink: list[dict[str, Any]],
+    topics: str = "robots",
 ) -> dict[str, Any]:
     """One fleet size, start to finish. The run's record is appended to ``sink`` first, so that
-    whatever was measured before a failure or a Ctrl-C is reported."""
-    mode = "rtf0" if rtf == 0 else "rtf1"
-    label = f"[N={n}{' rtf 0' if rtf == 0 else ''}]"
-    run: dict[str, Any] = {"n": n, "mode": mode, "target_rtf": rtf, "status": "ok", "error": None}
+    whatever was measured before a failure or a Ctrl-C is reported. ``topics`` is what the
+    subscriber process follows: every robot's own topics, or the fleet topics."""
+    mode = ("rtf0" if rtf == 0 else "rtf1") + ("-fleet" if topics == "fleet" else "")
+    label = f"[N={n}{' rtf 0' if rtf == 0 else ''}{' fleet topics' if topics == 'fleet' else ''}]"
+    run: dict[str, Any] = {
+        "n": n, "mode": mode, "target_rtf": rtf, "topics": topics, "status": "ok", "error": None,
+    }  # fmt: skip
     sink.append(run)
     t_run = time.monotonic()
     with contextlib.ExitStack() as stack:
@@ -80,7 +89,7 @@ def run_size(
             extra = (["--cmd-timeout", "0"] if rtf == 0 else []) + s.simd_args
             daemon = start_daemon(world_path, rtf, n + s.extra_spawns + 16, tmp, extra)
             stack.callback(daemon.stop)
-            sub = Subscriber(daemon.endpoint, PROBE, tmp / f"subscriber-{n}-{mode}.log")
+            sub = Subscriber(daemon.endpoint, PROBE, tmp / f"subscriber-{n}-{mode}.log", topics)
             stack.callback(sub.stop)
             progress.update(f"{label} starting simd and the subscriber", force=True)
             t0 = time.monotonic()
@@ -207,6 +216,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="--rtf 0 runs, judged on the median one: the machine's speed swings between runs (default 3; quick 1)",
     )
+    p.add_argument(
+        "--fast-topics",
+        nargs="+",
+        choices=("robots", "fleet"),
+        default=["robots", "fleet"],
+        help="what the subscriber follows in the --rtf 0 runs, each kind run --fast-runs times: every robot's own "
+        "topics, or the fleet topics P/odom and P/scan (default: both)",
+    )
     p.add_argument("--spawn-concurrency", type=int, default=16, help="spawn requests in flight (default 16)")
     p.add_argument("--latency-reps", type=int, default=None, help="cmd_vel→odom repetitions (default 20; quick 5)")
     p.add_argument("--extra-spawns", type=int, default=None, help="one-at-a-time spawn/deletes (default 500; quick 10)")
@@ -222,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--role", default="bench", choices=("bench", "subscriber"), help=argparse.SUPPRESS)
     p.add_argument("--endpoint", help=argparse.SUPPRESS)
     p.add_argument("--probe", default=PROBE, help=argparse.SUPPRESS)
+    p.add_argument("--topics", default="robots", choices=("robots", "fleet"), help=argparse.SUPPRESS)
     return p
 
 
@@ -229,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     if args.role == "subscriber":
-        return subscriber_main(args.endpoint, args.probe)
+        return subscriber_main(args.endpoint, args.probe, args.topics)
     if any(n < 1 for n in args.sizes):
         print("fleet_bench: sizes must be >= 1", file=sys.stderr)
         return 2
@@ -242,11 +260,12 @@ def main(argv: list[str] | None = None) -> int:
         seed=args.seed,
         simd_args=shlex.split(args.simd_args),
     )
-    plan: list[tuple[int, float]] = [(n, 1.0) for n in args.sizes]
+    plan: list[tuple[int, float, str]] = [(n, 1.0, "robots") for n in args.sizes]
     if not args.no_fast:
         fast_n = min(args.fast_size, max(args.sizes)) if args.quick else args.fast_size
         repeats = args.fast_runs if args.fast_runs is not None else (1 if args.quick else 3)
-        plan.extend([(fast_n, 0.0)] * max(1, repeats))
+        for _ in range(max(1, repeats)):  # interleaved, so that a slow spell of the machine hits both kinds
+            plan.extend((fast_n, 0.0, topics) for topics in dict.fromkeys(args.fast_topics))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     previous = signal.signal(signal.SIGTERM, raise_exit)
@@ -261,17 +280,14 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(f"machine: {machine_line(machine)}")
     print(f"command: {res['command']}")
-    print(
-        f"plan: {', '.join(f'N={n}' + (' rtf 0' if r == 0 else '') for n, r in plan)}; "
-        f"{s.duration:g} s measured per size",
-        flush=True,
-    )
+    steps = [f"N={n}" + (" rtf 0" if r == 0 else "") + (" fleet topics" if t == "fleet" else "") for n, r, t in plan]
+    print(f"plan: {', '.join(steps)}; {s.duration:g} s measured per size", flush=True)
     progress = Progress()
     code = 0
     try:
         with tempfile.TemporaryDirectory(prefix="fleet-bench-") as tmpdir:
-            for n, rtf in plan:
-                run_size(n, rtf, s, Path(tmpdir), progress, res["runs"])
+            for n, rtf, topics in plan:
+                run_size(n, rtf, s, Path(tmpdir), progress, res["runs"], topics)
                 write_outputs(res, out, with_plot=False)
     except (KeyboardInterrupt, SystemExit) as e:
         res["interrupted"] = True

@@ -23,8 +23,12 @@ from bench.processes import PREEXEC, ROOT, raise_exit, stop_process
 from bench.wire import ODOM_MIN_BYTES, PREFIX, SCAN_MIN_BYTES, zenoh_config
 
 
-def subscriber_main(endpoint: str, probe: str) -> int:
+def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
     """A separate process: a zenoh client counting every odom and scan per key.
+
+    ``topics`` is ``robots`` (every robot's own ``P/<ns>/odom`` and ``P/<ns>/scan``) or
+    ``fleet`` (``P/odom`` and ``P/scan``, one message a tick for the whole fleet, whose rows
+    are counted under the same per-robot keys).
 
     Prints ``READY``; ``COUNT t odom scan bad keys_odom keys_scan`` every second;
     ``TWIST t moving`` when the probe robot's odometry twist turns non-zero or back to zero;
@@ -33,7 +37,7 @@ def subscriber_main(endpoint: str, probe: str) -> int:
     import msgspec
     import zenoh
 
-    from protocol.messages import Odometry
+    from protocol.messages import FleetOdometry, FleetScans, Odometry
 
     signal.signal(signal.SIGTERM, raise_exit)
     signal.signal(signal.SIGINT, raise_exit)
@@ -81,8 +85,49 @@ def subscriber_main(endpoint: str, probe: str) -> int:
         # CPU a message against ~13.5 with a callback per topic and one more for the probe, the
         # difference between keeping up and not. Not P/*/*, which would also bring every
         # cmd_vel, nor P/**, which would wake the JSON mirrors (P/<ns>/odom/json).
-        session.declare_subscriber(f"{PREFIX}/*/odom", on_sample)
-        session.declare_subscriber(f"{PREFIX}/*/scan", on_sample)
+        fleet_odom = msgspec.msgpack.Decoder(FleetOdometry)
+        fleet_scan = msgspec.msgpack.Decoder(FleetScans)
+        odom_keys: dict[str, str] = {}
+        scan_keys: dict[str, str] = {}
+
+        def on_fleet_odom(sample: zenoh.Sample) -> None:
+            try:
+                msg = fleet_odom.decode(sample.payload.to_bytes())
+                n = len(msg.namespaces)
+                ok = all(len(c) == 8 * n for c in (msg.x, msg.y, msg.yaw, msg.linear_x, msg.angular_z))
+            except msgspec.DecodeError:
+                bad[0] += 1
+                return
+            if not ok:
+                bad[0] += 1
+            for ns in msg.namespaces:
+                k = odom_keys.get(ns) or odom_keys.setdefault(ns, f"{PREFIX}/{ns}/odom")
+                odom[k] = odom.get(k, 0) + 1
+            if probe in msg.namespaces:
+                i = msg.namespaces.index(probe)
+                t = time.monotonic()
+                now = bool(abs(msg.array("linear_x")[i]) > 1e-9 or abs(msg.array("angular_z")[i]) > 1e-9)
+                if now != moving[0]:
+                    moving[0] = now
+                    emit(f"TWIST {t:.6f} {int(now)}")
+
+        def on_fleet_scan(sample: zenoh.Sample) -> None:
+            try:
+                msg = fleet_scan.decode(sample.payload.to_bytes())
+                msg.ranges_array()  # checks the rows' size
+            except (msgspec.DecodeError, ValueError):
+                bad[0] += 1
+                return
+            for ns in msg.namespaces:
+                k = scan_keys.get(ns) or scan_keys.setdefault(ns, f"{PREFIX}/{ns}/scan")
+                scan[k] = scan.get(k, 0) + 1
+
+        if topics == "fleet":
+            session.declare_subscriber(f"{PREFIX}/odom", on_fleet_odom)
+            session.declare_subscriber(f"{PREFIX}/scan", on_fleet_scan)
+        else:
+            session.declare_subscriber(f"{PREFIX}/*/odom", on_sample)
+            session.declare_subscriber(f"{PREFIX}/*/scan", on_sample)
 
         def report() -> None:
             while not stop.wait(1.0):
@@ -111,7 +156,7 @@ def subscriber_main(endpoint: str, probe: str) -> int:
 class Subscriber:
     """Runs and talks to the subscriber process."""
 
-    def __init__(self, endpoint: str, probe: str, log_path: Path) -> None:
+    def __init__(self, endpoint: str, probe: str, log_path: Path, topics: str = "robots") -> None:
         self.log = log_path.open("w")
         self.proc = subprocess.Popen(
             [
@@ -124,6 +169,8 @@ class Subscriber:
                 endpoint,
                 "--probe",
                 probe,
+                "--topics",
+                topics,
             ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
