@@ -17,7 +17,7 @@ key                    declared by simd as         payload     reply / notes
 ``P/<ns>/scan``        publisher 5 Hz + queryable  LaserScan   a get returns the latest message
 ``P/<ns>/alive``       liveliness token            --          present while the robot lives
 ``P/odom``             publisher 30 Hz, on demand  FleetOdometry  every robot's odometry of a tick
-``P/scan``             publisher, on demand        FleetScans  the scans of a tick (~1/6 of robots)
+``P/scan``             publisher, on demand        FleetScans  the scans of a tick (the group due)
 =====================  ==========================  ==========  ======================================
 """
 

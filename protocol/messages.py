@@ -164,7 +164,8 @@ _FLEET_ODOM_COLUMNS = ("x", "y", "yaw", "linear_x", "linear_y", "angular_z")
 class FleetScans(msgspec.Struct, kw_only=True):
     """The scans taken in one tick, by every robot that scanned in it, in one message (``P/scan``).
 
-    Robots scan at 5 Hz on staggered ticks, so each message holds about a sixth of the fleet.
+    Robots scan at 5 Hz in groups spread over the ticks of a period (up to 128 robots a tick
+    until the fleet fills all six), so each message holds the group due in its tick.
     Every robot carries the same LDS-01, so the angles and limits are given once. ``ranges``
     holds one row of ``beams`` little-endian float32 values per namespace, the ranges of that
     robot's ``P/<ns>/scan`` message with the same stamp (:meth:`ranges_array` gives the rows).

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 import pytest
@@ -35,7 +36,7 @@ from clients.viewer.state import (
     color_rgb,
 )
 from protocol.control import Pose2D, RobotRecord
-from protocol.messages import Header, LaserScan, Odometry, Quaternion, Time
+from protocol.messages import FleetOdometry, FleetScans, Header, LaserScan, Odometry, Quaternion, Time
 from tests.cdp import CHROMIUM, Chromium
 from tests.conftest import ROOT, Daemon
 
@@ -145,6 +146,38 @@ def test_frame_carries_poses_and_world_frame_scan_points() -> None:
     assert stats.nbytes == len(data)
     # the meta goes out only when it changed
     assert state.frame(View(), 8, known_meta=version)[1] is None
+
+
+def test_the_fleet_topics_make_the_same_frame_as_the_per_robot_topics() -> None:
+    """The viewer follows P/odom and P/scan; a tick of those must draw what the robots' own
+    messages of that tick draw."""
+    from simd.fleet_codec import encode_fleet_odometry, encode_fleet_scans
+    from simd.lidar import LidarSpec
+
+    names = ["a", "b", "c"]
+    rng = np.random.default_rng(4)
+    x, y, yaw = rng.uniform(0, 3, 3), rng.uniform(0, 3, 3), rng.uniform(-3, 3, 3)
+    v, w = rng.uniform(0, 0.2, 3), rng.uniform(-1, 1, 3)
+    rows = rng.uniform(0.2, 3.4, size=(3, 360)).astype(np.float32)
+    rows[:, ::7] = np.inf
+    per_robot, batched = FleetState(), FleetState()
+    for st in (per_robot, batched):
+        for ns in names:
+            st.on_presence(ns, True)
+        st.apply_records([record(ns) for ns in names])
+    for i, ns in enumerate(names):
+        per_robot.on_odom(ns, odom(2.0, x[i], y[i], yaw[i], v[i], w[i]))
+        per_robot.on_scan(ns, scan(2.0, rows[i].tolist()))
+    spec = LidarSpec(samples=360, angle_max=2 * math.pi * 359 / 360)
+    batched.on_fleet_odom(
+        msgspec.msgpack.decode(encode_fleet_odometry(names, 2.0, x, y, yaw, v, np.zeros(3), w), type=FleetOdometry)
+    )
+    batched.on_fleet_scans(msgspec.msgpack.decode(encode_fleet_scans(spec, names, 2.0, rows), type=FleetScans))
+    a, b = decode_frame(per_robot.frame(View())[2]), decode_frame(batched.frame(View())[2])
+    assert a.header["n"] == b.header["n"] == 3 and a.header["scans"] == b.header["scans"] == 3
+    np.testing.assert_allclose(b.poses, a.poses, atol=1e-6)  # f32 on the wire; yaw via quaternion in one
+    np.testing.assert_allclose(b.scan_pts, a.scan_pts, atol=1e-5)
+    assert batched.odom_count == per_robot.odom_count == 3 and batched.scan_count == 3
 
 
 def test_scan_is_placed_with_the_pose_of_its_own_stamp() -> None:
