@@ -287,18 +287,25 @@ def measure_latency(ctx: Context, reps: int, progress: Progress) -> dict[str, An
     rng = random.Random(7)
     lat: list[float] = []
     misses = 0
+    # A miss is either a lost command or a stalled daemon (a shared machine's slow spell can
+    # hold it for seconds): the probe's odometry count over the wait tells which.
+    probe_key = f"{PREFIX}/{PROBE}/odom"
+    miss_probe_odom: list[int] = []
+    st0 = cpu_ticks()
     try:
         for r in range(reps):
             _check_alive(ctx)
             if ctx.sub.moving():
                 pub.put(stop)
                 ctx.sub.wait_twist(False, time.monotonic(), 3.0)
+            before = ctx.sub.snapshot()["odom"].get(probe_key, 0)
             time.sleep(rng.uniform(0.1, 0.3))  # land anywhere in the tick period
             t0 = time.monotonic()
             pub.put(turn)
             t1 = ctx.sub.wait_twist(True, t0, 3.0)
             if t1 is None:
                 misses += 1
+                miss_probe_odom.append(ctx.sub.snapshot()["odom"].get(probe_key, 0) - before)
             else:
                 lat.append(t1 - t0)
             pub.put(stop)
@@ -306,9 +313,14 @@ def measure_latency(ctx: Context, reps: int, progress: Progress) -> dict[str, An
             progress.update(f"{ctx.label} cmd_vel→odom {r + 1}/{reps}  last {fmt_ms(lat[-1] if lat else None)} ms")
     finally:
         pub.undeclare()
+    st1 = cpu_ticks()
     out = {
         "reps": reps,
         "misses": misses,
+        # probe odometry received from the sleep before each missed put to the end of its 3 s
+        # wait: ~100 if the daemon ran (the command was lost), far fewer if it stalled
+        "miss_probe_odom": miss_probe_odom,
+        "steal_pct": 100 * (st1[0] - st0[0]) / (st1[1] - st0[1]) if st0 and st1 and st1[1] > st0[1] else None,
         "p50_s": median(lat),
         "p95_s": percentile(lat, 95),
         "max_s": max(lat, default=None),

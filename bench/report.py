@@ -203,6 +203,17 @@ def _rtf_cell(m: dict[str, Any]) -> str:
     return f"{fmt_f(m['rtf'])} ({fmt_f(m.get('rtf_median'))}, {fmt_f(m.get('rtf_min'))}–{fmt_f(m.get('rtf_max'))})"
 
 
+def _missed(la: dict[str, Any]) -> str:
+    """Missed latency samples, with what tells a lost command from a stalled daemon."""
+    if not la.get("reps"):
+        return "–/–"
+    cell = f"{la.get('misses', '–')}/{la['reps']}"
+    if la.get("misses"):
+        odom = ", ".join(str(k) for k in la.get("miss_probe_odom", []))
+        cell += f" (probe odom meanwhile: {odom}; stolen {fmt_pct(la.get('steal_pct'))})"
+    return cell
+
+
 def _target(r: dict[str, Any]) -> str:
     fleet = ", fleet topics" if r.get("topics") == "fleet" else ""
     return ("max (0)" if r["target_rtf"] == 0 else f"{r['target_rtf']:g}") + fleet
@@ -274,7 +285,9 @@ def results_markdown(res: dict[str, Any]) -> str:
         f"{res['settings']['spawn_concurrency']} requests in flight (latency includes queueing behind the others). "
         "One at a time: a robot spawned then deleted next to the running fleet. cmd_vel → odom: a put from the "
         "benchmark process to an idle robot, until the subscriber process sees its first odometry with a "
-        "non-zero twist.",
+        "non-zero twist; missed: none within 3 s, with the probe's odometry received meanwhile (~100 if the "
+        "daemon ran and the command was lost, far fewer if the daemon stalled) and the share of CPU stolen by "
+        "the hypervisor during the latency runs.",
         "",
         "| N | batch: spawned, total (s) | batch p50 / p99 (ms) | one at a time: spawn p50 / p99 (ms) "
         "| delete p50 / p99 (ms) | cmd_vel → odom p50 / p95 / max (ms) | missed |",
@@ -292,7 +305,7 @@ def results_markdown(res: dict[str, Any]) -> str:
             f"| {fmt_ms(ss.get('spawn_p50_s'))} / {fmt_ms(ss.get('spawn_p99_s'))} "
             f"| {fmt_ms(ss.get('delete_p50_s'))} / {fmt_ms(ss.get('delete_p99_s'))} "
             f"| {fmt_ms(la.get('p50_s'))} / {fmt_ms(la.get('p95_s'))} / {fmt_ms(la.get('max_s'))} "
-            f"| {la.get('misses', '–')}/{la.get('reps', '–')} |"
+            f"| {_missed(la)} |"
         )
     lines += ["", "## Issue 5 targets", "", "| target | measured | met |", "|---|---|---|"]
     for t in res.get("targets", []):
