@@ -222,7 +222,7 @@ def build_parser() -> argparse.ArgumentParser:
         choices=("robots", "fleet"),
         default=["robots", "fleet"],
         help="what the subscriber follows in the --rtf 0 runs, each kind run --fast-runs times: every robot's own "
-        "topics, or the fleet topics P/odom and P/scan (default: both)",
+        "topics, or the fleet topics P/odometry and P/scans (default: both)",
     )
     p.add_argument("--spawn-concurrency", type=int, default=16, help="spawn requests in flight (default 16)")
     p.add_argument("--latency-reps", type=int, default=None, help="cmd_vel→odom repetitions (default 20; quick 5)")

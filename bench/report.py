@@ -121,7 +121,7 @@ def evaluate_targets(runs: list[dict[str, Any]]) -> list[dict[str, Any]]:
             runs,
             "rtf0-fleet",
             "2: 100 robots with --rtf 0: RTF ≥ 20, ≥ 99 % delivered to a subscriber of the fleet topics "
-            "(P/odom, P/scan)",
+            "(P/odometry, P/scans)",
         )
     )
     out.append(
@@ -313,9 +313,11 @@ def results_markdown(res: dict[str, Any]) -> str:
     lines += [
         "",
         "Targets 1 and 2 count as met only with ≥ 99 % of odometry and scans delivered; target 1 at RTF ≥ 0.98 "
-        "(a paced daemon cannot exceed 1; the rest is measurement noise). In every run the daemon publishes every "
-        "robot's own odom and scan; with *fleet topics* the subscriber follows P/odom and P/scan (one message a "
-        "tick for the whole fleet) instead, and its rows are counted per robot.",
+        "(a paced daemon cannot exceed 1; the rest is measurement noise). With *fleet topics* the subscriber "
+        "follows P/odometry and P/scans (one message a tick for the whole fleet) instead of every robot's own "
+        "topics, and its rows are counted per robot. The daemon still puts every robot's own messages then, but "
+        "with nobody subscribed to them they stay in its process (~0.7 µs a put instead of ~2.5) and nothing of "
+        "them crosses the network: target 2 is judged on that lighter load, target 1 on the per-robot one.",
     ]
     if res.get("interrupted"):
         lines += ["", "**Interrupted**: the runs above are the ones that finished."]
@@ -377,7 +379,7 @@ def plot(res: dict[str, Any], path: Path) -> bool:
         ax1.annotate(f"{v:.1f}", (r["n"], v), textcoords="offset points", xytext=(-30, 0), va="center", color="C4")
         odom = r["measure"]["odom_fraction"]
         ax2.plot(
-            [r["n"]], [odom], "s", color="C4", mfc="none", label="odometry at --rtf 0 via P/odom" if first else None
+            [r["n"]], [odom], "s", color="C4", mfc="none", label="odometry at --rtf 0 via P/odometry" if first else None
         )
     ax1.axhline(1.0, color="k", lw=1, ls=":", label="RTF = 1 (real time; target at N = 1000)")
     if fast or fast_fleet:

@@ -27,7 +27,7 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
     """A separate process: a zenoh client counting every odom and scan per key.
 
     ``topics`` is ``robots`` (every robot's own ``P/<ns>/odom`` and ``P/<ns>/scan``) or
-    ``fleet`` (``P/odom`` and ``P/scan``, one message a tick for the whole fleet, whose rows
+    ``fleet`` (``P/odometry`` and ``P/scans``, one message a tick for the whole fleet, whose rows
     are counted under the same per-robot keys).
 
     Prints ``READY``; ``COUNT t odom scan bad keys_odom keys_scan`` every second;
@@ -93,13 +93,13 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
         def on_fleet_odom(sample: zenoh.Sample) -> None:
             try:
                 msg = fleet_odom.decode(sample.payload.to_bytes())
-                n = len(msg.namespaces)
-                ok = all(len(c) == 8 * n for c in (msg.x, msg.y, msg.yaw, msg.linear_x, msg.angular_z))
             except msgspec.DecodeError:
                 bad[0] += 1
                 return
-            if not ok:
+            n = len(msg.namespaces)
+            if not all(len(c) == 8 * n for c in (msg.x, msg.y, msg.yaw, msg.linear_x, msg.linear_y, msg.angular_z)):
                 bad[0] += 1
+                return  # a malformed message delivers nothing
             for ns in msg.namespaces:
                 k = odom_keys.get(ns) or odom_keys.setdefault(ns, f"{PREFIX}/{ns}/odom")
                 odom[k] = odom.get(k, 0) + 1
@@ -123,8 +123,8 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
                 scan[k] = scan.get(k, 0) + 1
 
         if topics == "fleet":
-            session.declare_subscriber(f"{PREFIX}/odom", on_fleet_odom)
-            session.declare_subscriber(f"{PREFIX}/scan", on_fleet_scan)
+            session.declare_subscriber(f"{PREFIX}/odometry", on_fleet_odom)
+            session.declare_subscriber(f"{PREFIX}/scans", on_fleet_scan)
         else:
             session.declare_subscriber(f"{PREFIX}/*/odom", on_sample)
             session.declare_subscriber(f"{PREFIX}/*/scan", on_sample)

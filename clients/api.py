@@ -321,7 +321,7 @@ class FleetClient:
         return sub
 
     def on_fleet_odom(self, callback: Callable[[FleetOdometry], None]) -> Subscription:
-        """``callback(fleet_odom)`` once a tick with every robot's odometry (``P/odom``).
+        """``callback(fleet_odom)`` once a tick with every robot's odometry (``P/odometry``).
 
         One message a tick instead of one per robot: the way to follow a whole fleet, and the
         only one that keeps up with a hundred robots at 20x real time in Python.
@@ -330,12 +330,13 @@ class FleetClient:
         return self._subscribe_fleet(self.keys.fleet_odom, FleetOdometry, callback)
 
     def on_fleet_scans(self, callback: Callable[[FleetScans], None]) -> Subscription:
-        """``callback(fleet_scans)`` once a tick with the scans taken in it (``P/scan``);
+        """``callback(fleet_scans)`` once a tick with the scans taken in it (``P/scans``);
         ``fleet_scans.ranges_array()`` has one row per namespace."""
         return self._subscribe_fleet(self.keys.fleet_scan, FleetScans, callback)
 
     def wait_fleet_odom(self, timeout: float = 5.0) -> FleetOdometry:
-        """The next tick's odometry of the whole fleet."""
+        """The next tick's odometry of the whole fleet (a paused daemon has none until it is
+        stepped or resumed)."""
         q: queue.Queue[FleetOdometry] = queue.Queue(maxsize=1)
 
         def put(msg: FleetOdometry) -> None:

@@ -16,8 +16,8 @@ key                    declared by simd as         payload     reply / notes
 ``P/<ns>/odom``        publisher 30 Hz + queryable Odometry    a get returns the latest message
 ``P/<ns>/scan``        publisher 5 Hz + queryable  LaserScan   a get returns the latest message
 ``P/<ns>/alive``       liveliness token            --          present while the robot lives
-``P/odom``             publisher 30 Hz, on demand  FleetOdometry  every robot's odometry of a tick
-``P/scan``             publisher, on demand        FleetScans  the scans of a tick (the group due)
+``P/odometry``         publisher 30 Hz, on demand  FleetOdometry  every robot's odometry of a tick
+``P/scans``            publisher, on demand        FleetScans  the scans of a tick (the group due)
 =====================  ==========================  ==========  ======================================
 """
 
@@ -81,12 +81,12 @@ class Keys:
     @property
     def fleet_odom(self) -> str:
         """Every robot's odometry of one tick in one message; published while someone listens."""
-        return self._k("odom")
+        return self._k("odometry")
 
     @property
     def fleet_scan(self) -> str:
         """The scans of one tick in one message; published while someone listens."""
-        return self._k("scan")
+        return self._k("scans")
 
     def cmd_vel(self, ns: str) -> str:
         return self._k(ns, "cmd_vel")

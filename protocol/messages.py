@@ -128,7 +128,7 @@ class LaserScan(msgspec.Struct, kw_only=True):
 
 
 class FleetOdometry(msgspec.Struct, kw_only=True):
-    """Every robot's odometry of one tick in one message, column by column (``P/odom``).
+    """Every robot's odometry of one tick in one message, column by column (``P/odometry``).
 
     For programs that follow the whole fleet: at 100 robots and 20x real time the per-robot
     topics are 60 000 messages a second, which a Python subscriber cannot take (zenoh-python
@@ -162,7 +162,7 @@ _FLEET_ODOM_COLUMNS = ("x", "y", "yaw", "linear_x", "linear_y", "angular_z")
 
 
 class FleetScans(msgspec.Struct, kw_only=True):
-    """The scans taken in one tick, by every robot that scanned in it, in one message (``P/scan``).
+    """The scans taken in one tick, by every robot that scanned in it, in one message (``P/scans``).
 
     Robots scan at 5 Hz in groups spread over the ticks of a period (up to 128 robots a tick
     until the fleet fills all six), so each message holds the group due in its tick.

@@ -26,6 +26,8 @@ RESERVED_WORDS = frozenset(
         "scan",
         "cmd_vel",
         "alive",
+        "odometry",  # the fleet topics P/odometry and P/scans
+        "scans",
     }
 )
 

@@ -87,6 +87,9 @@ class Daemon:
         self._odom = OdometryEncoder()
         self._scans = ScanEncoder(sim.config.lidar)
         self._deleted: set[str] = set()  # namespaces deleted while a tick is half done
+        self._resets = 0
+        self.fleet_messages = 0  # P/odometry and P/scans messages sent (built only when wanted)
+        self._fleet_failed = False
 
     # -- status ---------------------------------------------------------------------------
 
@@ -153,37 +156,51 @@ class Daemon:
         """
         sim = self.sim
         sim.command_many(self.bridge.take_commands())
+        resets = self._resets
         out = sim.step()
         if serve_between and not self.bridge.requests.empty():
             deleted = self._serve_pending()
-            if sim.tick != out.tick:
+            # a reset, or steps, served meanwhile: this tick's measurements are stale (a reset
+            # followed by as many steps would bring the tick count back, hence both checks)
+            if sim.tick != out.tick or self._resets != resets:
                 return out
             if deleted:
                 out = _without(out, deleted)
-        self._publish_fleet_topics(out)
         odom = self._odom.encode(
             out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
         )
         scans = self._scans.encode(out.scan_namespaces, out.time, out.scans)
         self.bridge.publish(out.namespaces, odom, out.scan_namespaces, scans)
+        self._publish_fleet_topics(out)
         self._rtf_window.append((time.monotonic(), out.time))
         if out.tick % CLOCK_EVERY == 0:
             self._publish_clock()
         return out
 
     def _publish_fleet_topics(self, out: TickOutput) -> None:
-        """The tick as one message per topic, for whoever follows the whole fleet (if anyone)."""
+        """The tick as one message per topic, for whoever follows the whole fleet (if anyone).
+
+        After the per-robot topics, and never fatal: these are a convenience on top of the
+        contract, so a failure here is logged (once) and the simulation goes on.
+        """
         bridge = self.bridge
-        if out.namespaces and bridge.wants_fleet_odom():
-            bridge.fleet_odom_pub.put(
-                encode_fleet_odometry(
-                    out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
+        try:
+            if out.namespaces and bridge.wants_fleet_odom():
+                bridge.fleet_odom_pub.put(
+                    encode_fleet_odometry(
+                        out.namespaces, out.time, out.x, out.y, out.yaw, out.linear_x, out.linear_y, out.angular_z
+                    )
                 )
-            )
-        if out.scan_namespaces and bridge.wants_fleet_scan():
-            bridge.fleet_scan_pub.put(
-                encode_fleet_scans(self.sim.config.lidar, out.scan_namespaces, out.time, out.scans)
-            )
+                self.fleet_messages += 1
+            if out.scan_namespaces and bridge.wants_fleet_scan():
+                bridge.fleet_scan_pub.put(
+                    encode_fleet_scans(self.sim.config.lidar, out.scan_namespaces, out.time, out.scans)
+                )
+                self.fleet_messages += 1
+        except Exception:
+            if not self._fleet_failed:
+                log.exception("the fleet topics failed (logged once; the robots' own topics go on)")
+            self._fleet_failed = True
 
     def _serve_pending(self) -> set[str]:
         """Serve every queued request; return the namespaces deleted meanwhile."""
@@ -284,6 +301,7 @@ class Daemon:
     def _on_reset(self, req: Request) -> object:
         r = decode(req.payload, ResetRequest)
         self.sim.reset(r.seed)
+        self._resets += 1
         self.bridge.take_commands()
         self._rtf_window.clear()
         self._publish_clock()

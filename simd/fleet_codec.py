@@ -1,6 +1,6 @@
 """The fleet topics' messages: one tick of the whole fleet in one message.
 
-``P/odom`` and ``P/scan`` carry what the per-robot topics carry, column by column, for a
+``P/odometry`` and ``P/scans`` carry what the per-robot topics carry, column by column, for a
 client that follows every robot (a training loop, a fleet controller, a viewer of a thousand
 robots). Their cost to a subscriber is per message, not per robot: one message a tick instead
 of one per robot. Each is built only while somebody subscribes (see ``net.Bridge``), from the

@@ -213,11 +213,11 @@ class Bridge:
         self._odom_puts = ([], [])
 
     def wants_fleet_odom(self) -> bool:
-        """True while somebody subscribes to ``P/odom``."""
+        """True while somebody subscribes to ``P/odometry``."""
         return bool(self.fleet_odom_pub.matching_status.matching)  # type: ignore[attr-defined]  # stub says bool
 
     def wants_fleet_scan(self) -> bool:
-        """True while somebody subscribes to ``P/scan``."""
+        """True while somebody subscribes to ``P/scans``."""
         return bool(self.fleet_scan_pub.matching_status.matching)  # type: ignore[attr-defined]
 
     def publish(

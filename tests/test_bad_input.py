@@ -60,6 +60,7 @@ SPAWN_CASES: list[tuple[str, bytes | None, str]] = [
     ("dot", b'{"name": "."}', "invalid_name"),
     ("reserved spawn", b'{"name": "spawn"}', "reserved_name"),
     ("reserved sim", b'{"name": "sim"}', "reserved_name"),
+    ("reserved fleet topic", b'{"name": "ok", "namespace": "odometry"}', "reserved_name"),
     ("reserved namespace", b'{"name": "ok", "namespace": "world"}', "reserved_name"),
     ("bad namespace", b'{"name": "ok", "namespace": "a/b"}', "invalid_name"),
     ("duplicate name", b'{"name": "tb3_0", "x": 0.5, "y": -2}', "already_exists"),

@@ -47,6 +47,7 @@ def test_valid_names(name: str) -> None:
         ("spawn", ErrorCode.RESERVED_NAME, "reserved"),
         ("sim", ErrorCode.RESERVED_NAME, "reserved"),
         ("cmd_vel", ErrorCode.RESERVED_NAME, "reserved"),
+        ("scans", ErrorCode.RESERVED_NAME, "reserved"),
     ],
 )
 def test_invalid_names(name: str, code: ErrorCode, fragment: str) -> None:

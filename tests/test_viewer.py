@@ -149,7 +149,7 @@ def test_frame_carries_poses_and_world_frame_scan_points() -> None:
 
 
 def test_the_fleet_topics_make_the_same_frame_as_the_per_robot_topics() -> None:
-    """The viewer follows P/odom and P/scan; a tick of those must draw what the robots' own
+    """The viewer follows P/odometry and P/scans; a tick of those must draw what the robots' own
     messages of that tick draw."""
     from simd.fleet_codec import encode_fleet_odometry, encode_fleet_scans
     from simd.lidar import LidarSpec

@@ -266,7 +266,7 @@ class FleetState:
                        tw.linear.x, tw.angular.z)  # fmt: skip
 
     def on_fleet_odom(self, msg: FleetOdometry) -> None:
-        """Every robot's odometry of one tick (``P/odom``): one message and one lock a tick
+        """Every robot's odometry of one tick (``P/odometry``): one message and one lock a tick
         however many robots there are."""
         t = msg.stamp.to_seconds()
         cols = zip(
@@ -316,7 +316,7 @@ class FleetState:
                        msg.range_min, msg.range_max)  # fmt: skip
 
     def on_fleet_scans(self, msg: FleetScans) -> None:
-        """The scans of one tick (``P/scan``), a row per robot."""
+        """The scans of one tick (``P/scans``), a row per robot."""
         rows = msg.ranges_array()
         t = msg.stamp.to_seconds()
         with self._lock:
