@@ -212,7 +212,9 @@ def test_keys_drive_the_robot_through_the_application(daemon_factory: Callable[.
         time.sleep(2.0)
         times = [t for t, _, _ in rec.snapshot() if t > t0]
         assert 15 <= len(times) <= 25, len(times)
-        assert max(b - a for a, b in itertools.pairwise(times)) < 0.45  # within the watchdog
+        # no gap reaches the watchdog (0.5 s; gaps are ~0.1 s, but one CI run on a loaded
+        # machine saw 0.485 s, which the robot survives: the bar is the watchdog, not a margin)
+        assert max(b - a for a, b in itertools.pairwise(times)) < 0.5
         odom = c.wait_odom("TB3_1")
         assert odom.twist.twist.linear.x == pytest.approx(0.06, abs=0.005)
 
