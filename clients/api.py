@@ -95,6 +95,8 @@ class FleetClient:
                 "(is simd running? start it with: simd)",
             ) from None
         self._subs: list[Subscription] = []
+        self._cmd_pubs: dict[str, zenoh.Publisher] = {}
+        self._cmd_lock = threading.Lock()
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -102,6 +104,7 @@ class FleetClient:
         for s in self._subs:
             s.close()
         self._subs.clear()
+        self._cmd_pubs.clear()  # the session's close undeclares them
         self.session.close()
 
     def __enter__(self) -> FleetClient:
@@ -197,9 +200,25 @@ class FleetClient:
     # -- motion ---------------------------------------------------------------------------
 
     def drive(self, namespace: str, linear: float, angular: float) -> None:
-        """Put one cmd_vel. The daemon stops a robot 0.5 s after its last command."""
+        """Put one cmd_vel. The daemon stops a robot 0.5 s after its last command.
+
+        Each namespace gets a publisher, declared on first use and kept. With plain puts on
+        key strings instead, 1 000 robots driven at 5 Hz from one client backed up that
+        client's link at the daemon: its own queries waited 1.6–3.7 s (median) behind its
+        commands, against 7.6 ms with publishers (a declared key is routed once; a key string,
+        it seems, at every put).
+        """
         msg = Twist(linear=Vector3(x=linear), angular=Vector3(z=angular))
-        self.session.put(self.keys.cmd_vel(namespace), encode(msg), encoding="application/msgpack")
+        pub = self._cmd_pubs.get(namespace)
+        if pub is None:
+            with self._cmd_lock:  # one publisher per namespace, whichever thread drives it first
+                pub = self._cmd_pubs.get(namespace)
+                if pub is None:
+                    key = self.keys.cmd_vel(namespace)
+                    pub = self._cmd_pubs[namespace] = self.session.declare_publisher(
+                        key, encoding="application/msgpack"
+                    )
+        pub.put(encode(msg))
 
     def stop(self, namespace: str) -> None:
         self.drive(namespace, 0.0, 0.0)

@@ -81,6 +81,30 @@ def test_json_cmd_vel_drives_and_the_watchdog_stops(daemon: Daemon) -> None:
     assert c.robot("tb3_0").pose.x == stopped_at.pose.x  # type: ignore[union-attr]
 
 
+def test_the_client_drives_each_robot_through_one_publisher(daemon: Daemon) -> None:
+    """FleetClient.drive declares a publisher per namespace on first use and keeps it: with
+    plain puts on key strings, 1 000 robots driven from one client held that client's queries
+    for seconds (docs/clients.md)."""
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.spawn("tb3_1", 0.5, -2.0)
+    threads = [threading.Thread(target=c.drive, args=(ns, 0.2, 0.0)) for ns in ("tb3_0", "tb3_1") * 4]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(c._cmd_pubs) == ["tb3_0", "tb3_1"]  # one each, though eight threads raced
+    pubs = dict(c._cmd_pubs)
+    for _ in range(5):
+        for ns in ("tb3_0", "tb3_1"):
+            c.drive(ns, 0.2, 0.0)
+        time.sleep(0.1)
+    assert c._cmd_pubs == pubs
+    assert wait_until(
+        lambda: all((r.pose.x > -1.95 if r.name == "tb3_0" else r.pose.x > 0.55) for r in c.robots()), 2.0
+    )
+
+
 def test_four_robots_spawned_at_once_each_on_its_own_namespace(daemon: Daemon) -> None:
     clients = [daemon.client() for _ in MULTI]
     results: dict[int, object] = {}
