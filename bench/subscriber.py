@@ -37,7 +37,7 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
     import msgspec
     import zenoh
 
-    from protocol.messages import FleetOdometry, FleetScans, Odometry
+    from protocol.messages import FLEET_ODOM_COLUMNS, FleetOdometry, FleetScans, Odometry
 
     signal.signal(signal.SIGTERM, raise_exit)
     signal.signal(signal.SIGINT, raise_exit)
@@ -97,7 +97,7 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
                 bad[0] += 1
                 return
             n = len(msg.namespaces)
-            if not all(len(c) == 8 * n for c in (msg.x, msg.y, msg.yaw, msg.linear_x, msg.linear_y, msg.angular_z)):
+            if not all(len(getattr(msg, c)) == 8 * n for c in FLEET_ODOM_COLUMNS):
                 bad[0] += 1
                 return  # a malformed message delivers nothing
             for ns in msg.namespaces:

@@ -153,12 +153,13 @@ class FleetOdometry(msgspec.Struct, kw_only=True):
         read-only float64 array, one value per namespace (no copy)."""
         import numpy as np
 
-        if column not in _FLEET_ODOM_COLUMNS:
-            raise ValueError(f"no column {column!r}; the columns are {', '.join(_FLEET_ODOM_COLUMNS)}")
+        if column not in FLEET_ODOM_COLUMNS:
+            raise ValueError(f"no column {column!r}; the columns are {', '.join(FLEET_ODOM_COLUMNS)}")
         return np.frombuffer(getattr(self, column), dtype="<f8")
 
 
-_FLEET_ODOM_COLUMNS = ("x", "y", "yaw", "linear_x", "linear_y", "angular_z")
+#: The float64 columns of a FleetOdometry, in wire order.
+FLEET_ODOM_COLUMNS = ("x", "y", "yaw", "linear_x", "linear_y", "angular_z")
 
 
 class FleetScans(msgspec.Struct, kw_only=True):
