@@ -98,7 +98,7 @@ def make_arena(n: int, seed: int = 1) -> Arena:
 def write_world(arena: Arena, path: Path) -> None:
     import yaml
 
-    from simd.worldfile import load_world
+    from simd.core.worldfile import load_world
 
     path.write_text(yaml.safe_dump(arena.world, sort_keys=False, default_flow_style=None))
     load_world(str(path))  # fail here, with the loader's message, rather than in the daemon

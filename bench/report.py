@@ -71,7 +71,7 @@ def machine_info() -> dict[str, Any]:
 
 def _fast_paths() -> str:
     """The daemon's compiled paths as the daemon will see them (same environment)."""
-    from simd import native
+    from simd.core import native
 
     status = native.status()
     if all(v == "native" for v in status.values()):

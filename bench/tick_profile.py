@@ -73,10 +73,10 @@ def main(argv: list[str] | None = None) -> int:
 
     from protocol.control import SpawnRequest
     from protocol.keys import Keys
+    from simd.adapters.fleet.bridge import Bridge
+    from simd.core.sim import SimConfig, Simulation
+    from simd.core.worldfile import world_from_dict
     from simd.daemon import Daemon
-    from simd.net import Bridge
-    from simd.sim import SimConfig, Simulation
-    from simd.worldfile import world_from_dict
 
     arena = make_arena(args.robots, args.seed)
     config = SimConfig() if args.substeps is None else SimConfig(substeps=args.substeps)

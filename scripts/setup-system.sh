@@ -11,8 +11,8 @@ if [ ${#need[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
     echo "setup-system: installing ${need[*]}"
     export DEBIAN_FRONTEND=noninteractive
-    apt-get update -qq
-    apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null
+    apt-get update -qq >/dev/null
+    apt-get install -y -qq --no-install-recommends "${need[@]}" >/dev/null 2>&1 || apt-get install -y -qq --no-install-recommends "${need[@]}"
   else
     echo "setup-system: missing ${need[*]} (not root or no apt): the tests that need them will skip"
   fi

@@ -97,14 +97,14 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         return fail(str(e))
 
-    from simd.worldfile import WorldFileError, load_world
+    from simd.core.worldfile import WorldFileError, load_world
 
     try:
         world = load_world(args.world)
     except WorldFileError as e:
         return fail(str(e))
 
-    from simd import native
+    from simd.core import native
 
     try:  # importing the hot loops reads FLEETSIM_NATIVE / FLEETSIM_LIDAR
         fast = native.status()
@@ -115,9 +115,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import zenoh
 
+    from simd.adapters.fleet.bridge import Bridge
+    from simd.core.sim import SimConfig, Simulation
     from simd.daemon import Daemon
-    from simd.net import Bridge
-    from simd.sim import SimConfig, Simulation
 
     sim = Simulation(
         world,

@@ -29,12 +29,12 @@ from protocol.control import (
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
 from protocol.messages import Time
-from simd import convert
-from simd.fleet_codec import encode_fleet_odometry, encode_fleet_scans
-from simd.net import Bridge, Request, reply_error, reply_ok
-from simd.odom_codec import OdometryEncoder
-from simd.scan_codec import ScanEncoder
-from simd.sim import Simulation, TickOutput
+from simd.adapters.fleet.bridge import Bridge, Request, reply_error, reply_ok
+from simd.core.sim import Simulation, TickOutput
+from simd.wire import convert
+from simd.wire.fleet_codec import encode_fleet_odometry, encode_fleet_scans
+from simd.wire.odom_codec import OdometryEncoder
+from simd.wire.scan_codec import ScanEncoder
 
 log = logging.getLogger(__name__)
 

@@ -1,0 +1,1 @@
+"""Adapters: map the engine to the outside world (the fleet protocol over zenoh today)."""

@@ -1,0 +1,81 @@
+"""The compiled fast paths: one registry of them, and the one switch that turns them off.
+
+Four hot loops have a C twin built with the package (when a C compiler is there): the lidar
+kernel, the lidar's noise and masking, the diff-drive arithmetic and the odometry packer.
+Each numpy version stays in the code as the reference that tests compare the C one with, and
+as the fallback where nothing was compiled. ``KERNELS`` lists them: every module that has a
+twin asks for it here by its label (``load("drive")``), and ``status()`` reports the same
+choices without importing those modules, so nothing here depends on them.
+
+``FLEETSIM_NATIVE`` chooses: ``auto`` (default) uses what is built, ``numpy`` uses none of
+it (to compare, or to rule the C code out when something looks wrong), ``native`` fails at
+start-up if a module is missing (for benchmarks and the container image, which must not
+silently fall back). A kernel may have a variable of its own that overrides it
+(``FLEETSIM_LIDAR`` for the lidar kernel).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+from dataclasses import dataclass
+from types import ModuleType
+
+ENV = "FLEETSIM_NATIVE"
+
+
+@dataclass(frozen=True)
+class Kernel:
+    """One compiled fast path: where its module lives and what may override the switch."""
+
+    module: str
+    source: str
+    override: str | None = None
+
+
+#: label -> the compiled module (built from ``source``, see pyproject.toml's ext-modules)
+KERNELS: dict[str, Kernel] = {
+    "raycast": Kernel("simd.core._raycast", "simd/core/_raycast.c", override="FLEETSIM_LIDAR"),
+    "scannoise": Kernel("simd.core._scannoise", "simd/core/_scannoise.c"),
+    "drive": Kernel("simd.core._drive", "simd/core/_drive.c"),
+    "odompack": Kernel("simd.wire._odompack", "simd/wire/_odompack.c"),
+}
+
+
+def choice(override: str | None = None) -> tuple[str, str]:
+    """("auto" | "native" | "numpy", the variable that says so): ``override`` (a variable for
+    one loop, e.g. FLEETSIM_LIDAR) when it is set, else FLEETSIM_NATIVE, else auto."""
+    for var in (override, ENV) if override else (ENV,):
+        value = os.environ.get(var, "").strip().lower()
+        if value not in ("", "auto", "native", "numpy"):
+            raise ValueError(f"{var}={value!r}: expected 'auto', 'native' or 'numpy'")
+        if value:
+            return value, var
+    return "auto", ""
+
+
+def load(label: str) -> tuple[ModuleType | None, str | None]:
+    """The compiled module of ``label`` (a key of ``KERNELS``) and None, or None and why it is
+    not used. ImportError when the switch says ``native`` and it is not built."""
+    kernel = KERNELS.get(label)
+    if kernel is None:
+        raise ImportError(f"no compiled fast path is called {label!r}: choose one of {', '.join(KERNELS)}")
+    wanted, var = choice(kernel.override)
+    if wanted == "numpy":
+        return None, f"{var}=numpy"
+    try:
+        return importlib.import_module(kernel.module), None
+    except ImportError as exc:
+        if wanted == "native":
+            raise ImportError(f"{var}=native but {kernel.module} is not built: {exc}") from exc
+        return None, f"{kernel.module} is not built ({exc})"
+
+
+def status() -> dict[str, str]:
+    """Which path each hot loop takes in this environment, for the daemon's start-up line and
+    the benchmark's report: label -> 'native', or 'numpy (why)'."""
+    out: dict[str, str] = {}
+    for label in KERNELS:
+        module, why = load(label)
+        out[label] = "native" if module is not None else f"numpy ({why})"
+    return out

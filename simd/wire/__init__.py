@@ -1,0 +1,1 @@
+"""Wire codecs: core state to protocol messages, as bytes (no transport here)."""

@@ -1,0 +1,377 @@
+"""The real daemon process over real zenoh sessions: every key of the protocol."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pytest
+
+from clients import FleetClient, wait_until
+from protocol import ErrorCode, FleetError, LaserScan, Odometry
+from tests.conftest import ROOT, Daemon, free_port, simd_command
+from tests.zraw import Collector, get_json, raw_session
+
+MULTI = [(-2.0, -0.5), (0.5, -2.0), (2.0, 0.5), (-0.5, 2.0)]
+
+
+def test_spawn_then_odom_at_30hz_and_scan_at_5hz(daemon: Daemon) -> None:
+    c = daemon.client()
+    with raw_session(daemon.endpoint) as s:
+        odom = Collector(s, "fleet/tb3_0/odom")
+        scan = Collector(s, "fleet/tb3_0/scan")
+        rec = c.spawn("tb3_0", -2.0, -0.5)
+        assert rec.topics is not None and rec.topics.odom == "fleet/tb3_0/odom"
+        assert rec.frames is not None and rec.frames.base_scan == "tb3_0/base_scan"
+        assert rec.limits is not None and rec.limits.max_linear_velocity == 0.22
+        t0 = c.clock().clock.to_seconds()
+        time.sleep(2.0)
+        t1 = c.clock().clock.to_seconds()
+    sim_seconds = t1 - t0
+    assert sim_seconds > 1.0
+    # counts follow sim time: 30 odom and 5 scans per sim second (+/- the window edges)
+    assert abs(len(odom) - 30 * sim_seconds) <= 6
+    assert abs(len(scan) - 5 * sim_seconds) <= 2
+    o = msgspec.msgpack.decode(odom.samples[-1][1], type=Odometry)
+    assert o.header.frame_id == "tb3_0/odom" and o.child_frame_id == "tb3_0/base_footprint"
+    assert (o.pose.pose.position.x, o.pose.pose.position.y) == pytest.approx((-2.0, -0.5), abs=1e-6)
+    assert o.pose.covariance[0] == 1e-5 and o.pose.covariance[35] == 1e-3 and o.pose.covariance[14] == 1e12
+    sc = msgspec.msgpack.decode(scan.samples[-1][1], type=LaserScan)
+    r = sc.ranges_array()
+    assert r.shape == (360,) and r.dtype == np.float32
+    assert sc.angle_max == 6.28 and sc.angle_increment == pytest.approx(6.28 / 359)
+    assert sc.range_min == 0.12 and sc.range_max == 3.5
+    assert sc.header.frame_id == "tb3_0/base_scan"
+    finite = r[np.isfinite(r)]
+    assert len(finite) > 50 and finite.min() >= 0.12 and finite.max() <= 3.5
+
+
+def test_first_odom_arrives_within_one_period_of_the_reply(daemon: Daemon) -> None:
+    c = daemon.client()
+    got = threading.Event()
+    c.on_odom("tb3_0", lambda ns, m: got.set())
+    t0 = time.monotonic()
+    c.spawn("tb3_0", -2.0, -0.5)
+    assert got.wait(1.0)
+    # the spawn reply is sent after the first odometry is put
+    assert time.monotonic() - t0 < 1.0
+
+
+def test_json_cmd_vel_drives_and_the_watchdog_stops(daemon: Daemon) -> None:
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    with raw_session(daemon.endpoint) as s:
+        for _ in range(10):  # 1 s of 0.2 m/s, the way zenoh-cli put would send it
+            s.put("fleet/tb3_0/cmd_vel", b'{"linear": {"x": 0.2}, "angular": {"z": 0.0}}\n')
+            time.sleep(0.1)
+    moving = c.robot("tb3_0")
+    assert moving is not None and moving.pose.x > -1.9
+    assert wait_until(lambda: (r := c.robot("tb3_0")) is not None and r.linear_velocity == 0.0, 2.0)
+    stopped_at = c.robot("tb3_0")
+    time.sleep(0.3)
+    assert c.robot("tb3_0").pose.x == stopped_at.pose.x  # type: ignore[union-attr]
+
+
+def test_the_client_drives_each_robot_through_one_publisher(daemon: Daemon) -> None:
+    """FleetClient.drive declares a publisher per namespace on first use and keeps it: with
+    plain puts on key strings, 1 000 robots driven from one client held that client's queries
+    for seconds (docs/clients.md)."""
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.spawn("tb3_1", 0.5, -2.0)
+    threads = [threading.Thread(target=c.drive, args=(ns, 0.2, 0.0)) for ns in ("tb3_0", "tb3_1") * 4]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sorted(c._cmd_pubs) == ["tb3_0", "tb3_1"]  # one each, though eight threads raced
+    pubs = dict(c._cmd_pubs)
+    for _ in range(5):
+        for ns in ("tb3_0", "tb3_1"):
+            c.drive(ns, 0.2, 0.0)
+        time.sleep(0.1)
+    assert c._cmd_pubs == pubs
+    assert wait_until(
+        lambda: all((r.pose.x > -1.95 if r.name == "tb3_0" else r.pose.x > 0.55) for r in c.robots()), 2.0
+    )
+
+
+def test_four_robots_spawned_at_once_each_on_its_own_namespace(daemon: Daemon) -> None:
+    clients = [daemon.client() for _ in MULTI]
+    results: dict[int, object] = {}
+
+    def spawn(i: int) -> None:
+        x, y = MULTI[i]
+        try:
+            results[i] = clients[i].spawn(f"burger_{i + 1}", x, y, namespace=f"TB3_{i + 1}")
+        except FleetError as e:
+            results[i] = e
+
+    threads = [threading.Thread(target=spawn, args=(i,)) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert all(not isinstance(r, FleetError) for r in results.values()), results
+    c = clients[0]
+    assert c.alive() == ["TB3_1", "TB3_2", "TB3_3", "TB3_4"]
+    for i, (x, y) in enumerate(MULTI, 1):
+        o = c.wait_odom(f"TB3_{i}")
+        assert o.header.frame_id == f"TB3_{i}/odom"
+        assert (o.pose.pose.position.x, o.pose.pose.position.y) == pytest.approx((x, y), abs=1e-6)
+    c.drive("TB3_3", 0.0, 1.0)  # only TB3_3 turns
+    time.sleep(0.4)
+    yaws = {r.namespace: r.pose.yaw for r in c.robots()}
+    assert yaws["TB3_3"] > 0.05
+    assert yaws["TB3_1"] == yaws["TB3_2"] == yaws["TB3_4"] == 0.0
+
+
+def test_delete_list_and_liveliness(daemon: Daemon) -> None:
+    c = daemon.client()
+    events: list[tuple[str, bool]] = []
+    c.on_presence(lambda ns, up: events.append((ns, up)))
+    c.spawn("a", -2.0, -0.5)
+    c.spawn("b", 0.5, -2.0, model="waffle_pi")
+    assert [(r.name, r.model) for r in c.robots()] == [("a", "burger"), ("b", "waffle_pi")]
+    assert c.delete("a").name == "a"
+    assert [r.name for r in c.robots()] == ["b"]
+    assert wait_until(lambda: ("a", False) in events, 2.0)
+    assert ("a", True) in events and ("b", True) in events
+    with pytest.raises(FleetError) as e:
+        c.delete("a")
+    assert e.value.code is ErrorCode.NOT_FOUND
+    assert "does not exist" in e.value.message
+    # a deleted robot's name is free again, and it lives again
+    c.spawn("a", -2.0, -0.5)
+    assert c.wait_odom("a").pose.pose.position.x == pytest.approx(-2.0)
+
+
+def test_world_and_clock(daemon: Daemon) -> None:
+    c = daemon.client()
+    w = c.world()
+    assert w.name == "turtlebot3_world"
+    assert len(w.circles) == 9 and len(w.polygons) == 11
+    assert (w.default_spawn.x, w.default_spawn.y) == (-2.0, -0.5)
+    k0 = c.clock()
+    time.sleep(0.5)
+    k1 = c.clock()
+    assert k1.tick > k0.tick and not k1.paused
+    assert k1.dt == pytest.approx(1 / 30)
+    with raw_session(daemon.endpoint) as s:
+        clock = Collector(s, "fleet/clock")
+        assert wait_until(lambda: len(clock) >= 3, 2.0)  # 10 Hz
+
+
+def test_pause_step_resume_reset(daemon: Daemon) -> None:
+    c = daemon.client()
+    c.spawn("r", -2.0, -0.5)
+    c.drive("r", 0.2, 0.0)
+    time.sleep(0.3)
+    p = c.pause()
+    assert p.paused
+    time.sleep(0.3)
+    assert c.clock().tick == p.tick
+    s = c.step(30, cmd_vel={"r": (0.2, 0.0)})
+    assert s.tick == p.tick + 30
+    moved = c.robot("r")
+    assert moved is not None and moved.pose.x > -2.0
+    assert not c.resume().paused
+    r = c.reset()
+    assert r.tick == 0 or r.tick < 3
+    back = c.robot("r")
+    assert back is not None and (back.pose.x, back.pose.y) == pytest.approx((-2.0, -0.5), abs=2e-3)
+
+
+def test_step_refused_while_running(daemon: Daemon) -> None:
+    c = daemon.client()
+    with pytest.raises(FleetError) as e:
+        c.step(1)
+    assert e.value.code is ErrorCode.NOT_ALLOWED
+
+
+def test_lockstep_runs_only_on_request_and_is_deterministic(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
+    runs = []
+    for _ in range(2):
+        d = daemon_factory("--lockstep", "--seed", "5")
+        c = d.client()
+        c.spawn("r", -2.0, -0.5)
+        c.spawn("q", 0.5, -2.0)
+        assert c.clock().tick == 0
+        time.sleep(0.2)
+        assert c.clock().tick == 0  # nothing moves on its own
+        with pytest.raises(FleetError) as e:
+            c.resume()
+        assert e.value.code is ErrorCode.NOT_ALLOWED
+        scans: list[bytes] = []
+        c.on_scan("r", lambda ns, m, out=scans: out.append(m.ranges))  # type: ignore[misc]
+        for k in range(10):
+            c.step(6, cmd_vel={"r": (0.2, 0.5 * math.sin(k)), "q": (0.1, -0.3)})
+        assert c.clock().tick == 60
+        assert wait_until(lambda out=scans: len(out) == 10, 2.0)  # type: ignore[misc]
+        runs.append(([(r.pose.x, r.pose.y, r.pose.yaw) for r in c.robots()], list(scans)))
+        d.stop()
+    assert runs[0] == runs[1]
+
+
+def test_latest_odom_query_in_json(daemon: Daemon) -> None:
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.wait_odom("tb3_0")
+    with raw_session(daemon.endpoint) as s:
+        ok, err = get_json(s, "fleet/tb3_0/odom?format=json")
+    assert err is None
+    assert ok["header"]["frame_id"] == "tb3_0/odom"
+    assert ok["pose"]["pose"]["position"]["x"] == pytest.approx(-2.0)
+
+
+def test_prefix_separates_two_simulations(daemon_factory: Callable[..., Daemon]) -> None:
+    d = daemon_factory(prefix="sim_b")
+    c = d.client()
+    rec = c.spawn("tb3_0", -2.0, -0.5)
+    assert rec.topics is not None and rec.topics.odom == "sim_b/tb3_0/odom"
+    with (
+        FleetClient(d.endpoint, prefix="fleet", timeout=1.0) as other,
+        pytest.raises(FleetError) as e,
+    ):
+        other.robots()
+    assert e.value.code is ErrorCode.UNAVAILABLE
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_signal_stops_within_one_second_with_exit_0(daemon: Daemon, sig: int) -> None:
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.close()
+    daemon.clients.clear()
+    t0 = time.monotonic()
+    daemon.proc.send_signal(sig)
+    code = daemon.proc.wait(5)
+    elapsed = time.monotonic() - t0
+    assert code == 0, daemon.log()
+    assert elapsed < 1.0, f"took {elapsed:.2f} s"
+
+
+def test_port_in_use_is_one_line_and_exit_2(daemon: Daemon) -> None:
+    p = subprocess.run(simd_command("-l", daemon.endpoint), capture_output=True, text=True, timeout=20, cwd=ROOT)
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1, p.stderr
+    assert str(daemon.port) in lines[0] and "in use" in lines[0]
+
+
+def test_bad_world_file_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(
+        "name: bad\nbounds: {x_min: 0, x_max: 1, y_min: 0, y_max: 1}\n"
+        "obstacles:\n  - {type: circle, x: 0, y: 0, radius: -1}\n"
+    )
+    for world, fragment in ((str(bad), "radius"), ("turtlebot3_wrld", "turtlebot3_world")):
+        p = subprocess.run(
+            simd_command("--world", world, "-l", f"tcp/127.0.0.1:{free_port()}"),
+            capture_output=True, text=True, timeout=20, cwd=ROOT,
+        )  # fmt: skip
+        assert p.returncode == 2
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and fragment in lines[0], p.stderr
+
+
+@pytest.mark.parametrize("variable", ["FLEETSIM_NATIVE", "FLEETSIM_LIDAR"])
+def test_bad_fast_path_switch_is_one_line_and_exit_2(variable: str) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("FLEETSIM_NATIVE", "FLEETSIM_LIDAR")}
+    p = subprocess.run(
+        simd_command("-l", f"tcp/127.0.0.1:{free_port()}"),
+        capture_output=True, text=True, timeout=20, cwd=ROOT, env={**env, variable: "fastest"},
+    )  # fmt: skip
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and variable in lines[0] and "'numpy'" in lines[0], p.stderr
+
+
+def test_help_lists_the_flags() -> None:
+    p = subprocess.run(
+        [sys.executable, "-m", "simd.cli", "--help"],
+        capture_output=True,
+        text=True,
+        timeout=20,
+        cwd=ROOT,
+    )
+    for flag in ("--world", "--prefix", "--seed", "--rtf", "--no-noise", "--cmd-timeout", "--max-robots",
+                 "--lockstep", "--listen", "--connect", "--mode", "--config", "--cfg"):  # fmt: skip
+        assert flag in p.stdout
+
+
+def test_json_mirrors_flow_only_while_subscribed(daemon: Daemon) -> None:
+    import json
+
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    with raw_session(daemon.endpoint) as s:
+        odom = Collector(s, "fleet/tb3_0/odom/json")
+        scan = Collector(s, "fleet/tb3_0/scan/json")
+        assert wait_until(lambda: len(odom) >= 5 and len(scan) >= 1, 3.0)
+        o = json.loads(odom.samples[-1][1])
+        assert o["header"]["frame_id"] == "tb3_0/odom"
+        sc = json.loads(scan.samples[-1][1])
+        assert len(sc["ranges"]) == 360
+        assert all(r is None or 0.12 <= r <= 3.5 for r in sc["ranges"])
+
+
+def test_a_tick_without_deleted_robots() -> None:
+    from simd.core.sim import TickOutput
+    from simd.daemon import _without
+
+    a = np.arange(3.0)
+    out = TickOutput(
+        tick=1, time=1 / 30, namespaces=["a", "b", "c"], x=a, y=a + 1, yaw=a + 2,
+        linear_x=a, linear_y=a, angular_z=a, scan_namespaces=["b", "c"],
+        scans=np.zeros((2, 360), dtype=np.float32) + np.array([[1.0], [2.0]], dtype=np.float32),
+    )  # fmt: skip
+    kept = _without(out, {"b"})
+    assert kept.namespaces == ["a", "c"] and kept.x.tolist() == [0.0, 2.0] and kept.y.tolist() == [1.0, 3.0]
+    assert kept.scan_namespaces == ["c"] and kept.scans[:, 0].tolist() == [2.0]
+
+
+def test_spawn_and_delete_churn_while_running(daemon_factory: Callable[..., Daemon]) -> None:
+    d = daemon_factory("--world", "empty")
+    c = d.client()
+    for i in range(40):  # a fleet whose ticks take long enough for requests to land mid-tick
+        c.spawn(f"r{i}", x=(i % 8) * 1.0 - 4, y=(i // 8) * 1.0 - 4)
+    with raw_session(d.endpoint) as s:
+        odom = Collector(s, "fleet/*/odom")
+        for k in range(60):
+            c.spawn("churn", x=5.0, y=5.0)
+            c.delete("churn")
+            if k % 10 == 0:
+                c.delete(f"r{k // 10}")
+        time.sleep(0.3)
+        odom.clear()
+        time.sleep(0.5)
+        seen = {k.split("/")[1] for k in odom.key_set()}
+        # the same name once more, for good, deleted and spawned again between two ticks (so
+        # the fleet's namespace list is the same before and after): its odometry must flow on
+        # its new publisher, not on the one undeclared with the first
+        c.spawn("churn", x=5.0, y=5.0)
+        c.pause()
+        c.delete("churn")
+        c.spawn("churn", x=5.0, y=5.0)
+        c.resume()
+        time.sleep(0.3)
+        odom.clear()
+        time.sleep(0.5)
+        again = {k.split("/")[1] for k in odom.key_set()}
+    assert "churn" not in seen and not ({f"r{i}" for i in range(6)} & seen)
+    assert seen == {f"r{i}" for i in range(6, 40)}
+    assert again == seen | {"churn"}
+    assert d.alive()
+    assert "failed" not in d.log() and "Traceback" not in d.log()
