@@ -3,7 +3,7 @@
     python -m bench.tick_profile --robots 100 --seconds 8
 
 The fleet benchmark (``python -m bench.fleet_bench``) measures what users get; this tool says
-why. It builds the benchmark's arena for N robots, runs the daemon's own tick (``Daemon.tick``:
+why. It builds the benchmark's arena for N robots, runs the daemon's own tick (``Engine.tick``:
 commands, physics, lidar, odometry and scan encoding, zenoh puts) as fast as it can on a real
 zenoh session, with a separate subscriber process receiving every message, and times each
 phase by wrapping the daemon's methods. Robots wander (a new random command per robot every
@@ -73,18 +73,16 @@ def main(argv: list[str] | None = None) -> int:
 
     from protocol.control import SpawnRequest
     from protocol.keys import Keys
-    from simd.adapters.fleet.bridge import Bridge
+    from simd.adapters.fleet.adapter import FleetAdapter
     from simd.core.sim import SimConfig, Simulation
     from simd.core.worldfile import world_from_dict
-    from simd.daemon import Daemon
+    from simd.engine import Engine
 
     arena = make_arena(args.robots, args.seed)
     config = SimConfig() if args.substeps is None else SimConfig(substeps=args.substeps)
     sim = Simulation(world_from_dict(arena.world), config)
     if args.iterations is not None:
         sim.physics.space.iterations = args.iterations
-    for i, (x, y, yaw) in enumerate(arena.poses):
-        sim.spawn(SpawnRequest(name=f"r{i}", x=x, y=y, yaw=yaw))
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     conf = zenoh.Config()
@@ -94,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     conf.insert_json5("transport/link/tx/queue/size/data", "16")
     conf.insert_json5("transport/link/tx/queue/size/data_low", "16")
     session = zenoh.open(conf)
+    adapter: Any = None
     sub = subprocess.Popen(
         [sys.executable, "-c", _SUBSCRIBER % endpoint], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
     )
@@ -101,11 +100,11 @@ def main(argv: list[str] | None = None) -> int:
         assert sub.stdout is not None and sub.stdin is not None
         if sub.stdout.readline().strip() != "READY":
             raise SystemExit("the subscriber did not start")
-        keys = Keys()
-        bridge = Bridge(session, keys)
-        daemon = Daemon(sim, bridge, keys, rtf=0.0)
-        for r in sim._robots:
-            bridge.add_robot(r.namespace)
+        engine = Engine(sim, rtf=0.0)
+        adapter = FleetAdapter(session, Keys(), engine)
+        for i, (x, y, yaw) in enumerate(arena.poses):
+            engine.submit(SpawnRequest(name=f"r{i}", x=x, y=y, yaw=yaw), lambda r: None)
+        engine.serve_pending()
         time.sleep(0.5)
 
         table: dict[str, list[float]] = collections.defaultdict(list)
@@ -115,15 +114,16 @@ def main(argv: list[str] | None = None) -> int:
         sim.physics.poses = _timed(table, "physics poses", sim.physics.poses)  # type: ignore[method-assign]
         sim._scan = _timed(table, "lidar + noise", sim._scan)  # type: ignore[method-assign]
         sim._sensor_model = _timed(table, "  noise", sim._sensor_model)  # type: ignore[method-assign]
-        daemon._odom.encode = _timed(table, "odometry encode", daemon._odom.encode)  # type: ignore[method-assign]
-        daemon._scans.encode = _timed(table, "scan encode", daemon._scans.encode)  # type: ignore[method-assign]
-        bridge.publish = _timed(table, "zenoh puts", bridge.publish)  # type: ignore[method-assign]
+        pub = adapter.publisher
+        pub._odom.encode = _timed(table, "odometry encode", pub._odom.encode)  # type: ignore[method-assign]
+        pub._scans.encode = _timed(table, "scan encode", pub._scans.encode)  # type: ignore[method-assign]
+        adapter.on_tick = _timed(table, "publish (all)", adapter.on_tick)  # type: ignore[method-assign]
         sim.command_many = _timed(table, "commands", sim.command_many)  # type: ignore[method-assign]
         step = _timed(table, "step (all)", sim.step)
         sim.step = step  # type: ignore[method-assign]
 
         rng = random.Random(args.seed)
-        names = [r.namespace for r in sim._robots]
+        names = list(sim.robots.namespaces)
         speed = {ns: rng.uniform(0.10, 0.22) for ns in names}
         per_tick: list[float] = []
         cpu_tick: list[float] = []
@@ -140,11 +140,10 @@ def main(argv: list[str] | None = None) -> int:
                 measuring, ticks, t_start, c_start = True, 0, now, time.thread_time()
             if now >= end:
                 break
-            if sim.tick % 3 == 0:  # 10 Hz of sim time
-                for ns in names:
-                    bridge._commands[ns] = (speed[ns], rng.uniform(-1.2, 1.2))
             t0, c0 = time.perf_counter(), time.thread_time()
-            daemon.tick()
+            if sim.tick % 3 == 0:  # 10 Hz of sim time
+                sim.command_many({ns: (speed[ns], rng.uniform(-1.2, 1.2)) for ns in names})
+            engine.tick()
             per_tick.append(time.perf_counter() - t0)
             cpu_tick.append(time.thread_time() - c0)
             ticks += 1
@@ -154,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
         sub.stdin.flush()
         got = sub.stdout.readline().split()
     finally:
+        if adapter is not None:
+            adapter.close()
         session.close()
         if sub.poll() is None:
             sub.kill()

@@ -41,8 +41,22 @@ def _pair(type_: type[T]) -> tuple[msgspec.msgpack.Decoder[T], msgspec.json.Deco
     return pair
 
 
-def decode(payload: bytes, type_: type[T]) -> T:
-    """Decode ``payload`` (MessagePack or JSON) into ``type_``; raise ``FleetError(MALFORMED)``."""
+#: The largest payload any key takes (a step with commands for 5 000 robots is ~0.5 MB).
+MAX_PAYLOAD_BYTES = 4 << 20
+
+
+def decode(payload: bytes, type_: type[T], max_bytes: int = MAX_PAYLOAD_BYTES) -> T:
+    """Decode ``payload`` (MessagePack or JSON) into ``type_``.
+
+    Whatever the bytes, the outcome is the value or a ``FleetError``: ``too_large`` beyond
+    ``max_bytes``, ``malformed`` for anything that does not decode (nesting deeper than
+    msgspec recurses, invalid UTF-8 and every other decoder failure included), so that no
+    input reaches a caller as an unexpected exception.
+    """
+    if len(payload) > max_bytes:
+        raise FleetError(
+            ErrorCode.TOO_LARGE, f"a {type_.__name__} of {len(payload)} bytes exceeds the limit of {max_bytes} bytes"
+        )
     mp, js = _pair(type_)
     fmt = sniff_format(payload) if payload else "json"
     try:
@@ -54,6 +68,14 @@ def decode(payload: bytes, type_: type[T]) -> T:
         raise FleetError(ErrorCode.MALFORMED, f"invalid {type_.__name__}: {e}", field) from None
     except msgspec.DecodeError as e:
         raise FleetError(ErrorCode.MALFORMED, f"payload is not valid {fmt} for {type_.__name__}: {e}") from None
+    except RecursionError:
+        raise FleetError(ErrorCode.MALFORMED, f"payload nests too deeply for a {type_.__name__}") from None
+    except UnicodeDecodeError as e:
+        why = f"payload is not valid UTF-8 {fmt}: {e.reason} at byte {e.start}"
+        raise FleetError(ErrorCode.MALFORMED, why) from None
+    except Exception as e:  # anything else msgspec may raise on hostile bytes is still bad input
+        why = f"payload does not decode as {type_.__name__}: {type(e).__name__}"
+        raise FleetError(ErrorCode.MALFORMED, why) from None
 
 
 def _field_of(message: str) -> str | None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import msgspec
 
-from protocol.messages import Time, Twist
+from protocol.messages import LaserScan, Odometry, Time, Twist
 
 MODELS = ("burger", "waffle", "waffle_pi")
 
@@ -34,15 +34,23 @@ class DeleteRequest(msgspec.Struct, kw_only=True):
     name: str
 
 
+#: Most ticks one step request may ask for (about 9 hours of sim time). A long step runs in
+#: slices with other requests served between them, and ``P/sim/pause`` cancels what is left.
+MAX_STEP_TICKS = 1_000_000
+
+
 class StepRequest(msgspec.Struct, kw_only=True):
     """``P/sim/step``: advance ``ticks`` fixed steps (1/30 s each) while paused or in lockstep.
 
-    ``cmd_vel`` maps namespaces to commands applied before the first tick, so a lockstep
-    client's command and step cannot race each other on different zenoh threads.
+    ``cmd_vel`` maps namespaces to commands that hold for every tick of the step (the 0.5 s
+    watchdog never cuts them short), so a lockstep client's command and step cannot race
+    each other on different zenoh threads. ``observe`` names robots whose odometry and latest
+    scan come back in the reply, saving a round trip per robot.
     """
 
     ticks: int = 1
     cmd_vel: dict[str, Twist] = msgspec.field(default_factory=dict)
+    observe: list[str] = msgspec.field(default_factory=list)
 
 
 class ResetRequest(msgspec.Struct, kw_only=True):
@@ -56,6 +64,40 @@ class ResetRequest(msgspec.Struct, kw_only=True):
 
 class EmptyRequest(msgspec.Struct, kw_only=True):
     """Requests that carry nothing (list, world, clock, pause, resume)."""
+
+
+class ListRequest(EmptyRequest, kw_only=True):
+    """``P/robots``."""
+
+
+class WorldRequest(EmptyRequest, kw_only=True):
+    """``P/world``."""
+
+
+class ClockRequest(EmptyRequest, kw_only=True):
+    """``P/clock``."""
+
+
+class PauseRequest(EmptyRequest, kw_only=True):
+    """``P/sim/pause``: time stands still; a running step stops where it is."""
+
+
+class ResumeRequest(EmptyRequest, kw_only=True):
+    """``P/sim/resume``."""
+
+
+#: Every request the daemon serves, by the kind of key it arrives on.
+Request = (
+    SpawnRequest
+    | DeleteRequest
+    | ListRequest
+    | WorldRequest
+    | ClockRequest
+    | PauseRequest
+    | ResumeRequest
+    | ResetRequest
+    | StepRequest
+)
 
 
 class Topics(msgspec.Struct, kw_only=True):
@@ -144,3 +186,20 @@ class Clock(msgspec.Struct, kw_only=True):
     robots: int
     #: cmd_vel messages dropped because they did not decode or were not finite.
     dropped_commands: int = 0
+
+
+class Observation(msgspec.Struct, kw_only=True):
+    """One robot after a step: its odometry, and its latest scan (None before the first)."""
+
+    odom: Odometry
+    scan: LaserScan | None = None
+
+
+class StepReply(Clock, kw_only=True):
+    """The reply of ``P/sim/step``: the clock after the step, how many ticks ran (fewer than
+    asked when a pause cancelled the rest), and the observations asked for. A client that
+    decodes it as a :class:`Clock` reads the clock."""
+
+    ticks_run: int = 0
+    cancelled: bool = False
+    observations: dict[str, Observation] = msgspec.field(default_factory=dict)

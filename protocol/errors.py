@@ -28,6 +28,8 @@ class ErrorCode(str, enum.Enum):
     INVALID_VALUE = "invalid_value"  # a field is out of its allowed range
     NOT_ALLOWED = "not_allowed"  # request not valid in the current mode (e.g. step while running)
     BUSY = "busy"  # the daemon's request queue is full; retry later
+    TOO_LARGE = "too_large"  # the payload exceeds the key's size limit
+    INTERNAL = "internal"  # the daemon's own bug (never bad input): please report it
     TIMEOUT = "timeout"  # client side: no reply within the deadline
     UNAVAILABLE = "unavailable"  # client side: no daemon answered
 

@@ -115,9 +115,9 @@ def main(argv: list[str] | None = None) -> int:
 
     import zenoh
 
-    from simd.adapters.fleet.bridge import Bridge
+    from simd.adapters.fleet.adapter import FleetAdapter
     from simd.core.sim import SimConfig, Simulation
-    from simd.daemon import Daemon
+    from simd.engine import Engine
 
     sim = Simulation(
         world,
@@ -140,15 +140,14 @@ def main(argv: list[str] | None = None) -> int:
         if "in use" in msg.lower():
             return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
         return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
-    daemon: Daemon | None = None
+    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused)
+    adapter: FleetAdapter | None = None
     try:
-        bridge = Bridge(session, keys)
-        daemon = Daemon(sim, bridge, keys, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused)
+        adapter = FleetAdapter(session, keys, engine)
 
         def on_signal(signum: int, frame: FrameType | None) -> None:
             log.info("received %s, stopping", signal.Signals(signum).name)
-            assert daemon is not None
-            daemon.stop()
+            engine.stop()
 
         signal.signal(signal.SIGINT, on_signal)
         signal.signal(signal.SIGTERM, on_signal)
@@ -171,10 +170,10 @@ def main(argv: list[str] | None = None) -> int:
             f'(or zenoh get -s {keys.spawn} -v \'{{"name": "tb3_0", "x": {x:g}, "y": {y:g}}}\')',
             flush=True,
         )
-        daemon.run()
+        engine.run()
     finally:
-        if daemon is not None:
-            daemon.bridge.close()
+        if adapter is not None:
+            adapter.close()
         session.close()
     log.info("stopped at sim time %.3f s", sim.time)
     return 0

@@ -14,6 +14,7 @@ reference the compiled loop is tested against (simd/core/native.py).
 from __future__ import annotations
 
 import functools
+from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -71,21 +72,23 @@ def arc_displacement(v: F64, w: F64, yaw: F64, dt: float) -> tuple[F64, F64]:
     return fwd * c - left * s, fwd * s + left * c
 
 
+class DriveColumns(Protocol):
+    """The per-robot columns the controller reads and updates (the robot table has them)."""
+
+    last_cmd: I64  # tick of each robot's last command (the watchdog's clock)
+    target_v: F64  # commanded twist, zeroed in place by the watchdog
+    target_w: F64
+    max_v: F64  # the model's limits
+    max_w: F64
+    sep: F64  # wheel separation
+    acc: F64  # wheel acceleration limit at the rim
+    wheel_l: F64  # rim speeds, ramped in place
+    wheel_r: F64
+    yaw: F64  # heading at the start of the tick
+
+
 def advance(
-    tick: int,
-    cmd_timeout: float,
-    dt: float,
-    last_cmd: I64,
-    target_v: F64,
-    target_w: F64,
-    max_v: F64,
-    max_w: F64,
-    separation: F64,
-    max_accel: F64,
-    wheel_l: F64,
-    wheel_r: F64,
-    yaw: F64,
-    use_native: bool | None = None,
+    tick: int, cmd_timeout: float, dt: float, robots: DriveColumns, use_native: bool | None = None
 ) -> tuple[F64, F64, F64, F64]:
     """One controller update for every robot: returns (v, w, dx, dy), the body twist and the
     world-frame displacement over ``dt``.
@@ -94,7 +97,8 @@ def advance(
     watchdog), and the wheel speeds ramp. ``use_native`` picks the path (default: compiled
     when built).
     """
-    n = len(yaw)
+    r = robots
+    n = len(r.yaw)
     if (_native is not None) if use_native is None else use_native:
         if _native is None:
             raise RuntimeError(f"the compiled drive is not available: {_why}")
@@ -103,18 +107,18 @@ def advance(
         # updated in place, so those must already be contiguous float64 (TypeError otherwise)
         f64 = functools.partial(np.ascontiguousarray, dtype=np.float64)
         _native.advance(
-            tick, cmd_timeout, dt, np.ascontiguousarray(last_cmd, dtype=np.int64), target_v, target_w,
-            f64(max_v), f64(max_w), f64(separation), f64(max_accel), wheel_l, wheel_r, f64(yaw), v, w, dx, dy,
+            tick, cmd_timeout, dt, np.ascontiguousarray(r.last_cmd, dtype=np.int64), r.target_v, r.target_w,
+            f64(r.max_v), f64(r.max_w), f64(r.sep), f64(r.acc), r.wheel_l, r.wheel_r, f64(r.yaw), v, w, dx, dy,
         )  # fmt: skip
         return v, w, dx, dy
     if cmd_timeout > 0 and n:
-        stale = (tick - last_cmd) * dt > cmd_timeout + 1e-9
-        target_v[stale] = 0.0
-        target_w[stale] = 0.0
-    lt, rt = wheel_targets(target_v, target_w, max_v, max_w, separation)
-    wheel_l[:], wheel_r[:] = ramp_wheels(wheel_l, wheel_r, lt, rt, max_accel, dt)
-    v, w = body_twist(wheel_l, wheel_r, separation)
-    dx, dy = arc_displacement(v, w, yaw, dt)
+        stale = (tick - r.last_cmd) * dt > cmd_timeout + 1e-9
+        r.target_v[stale] = 0.0
+        r.target_w[stale] = 0.0
+    lt, rt = wheel_targets(r.target_v, r.target_w, r.max_v, r.max_w, r.sep)
+    r.wheel_l[:], r.wheel_r[:] = ramp_wheels(r.wheel_l, r.wheel_r, lt, rt, r.acc, dt)
+    v, w = body_twist(r.wheel_l, r.wheel_r, r.sep)
+    dx, dy = arc_displacement(v, w, r.yaw, dt)
     return v, w, dx, dy
 
 

@@ -1,14 +1,16 @@
 """The simulation core: robots, the fixed-step tick, sensors, spawn rules and reset.
 
 Free of any transport. A single thread owns a :class:`Simulation` (and through it the
-pymunk space). Per-robot state lives in numpy arrays, one row per robot in spawn order,
-so that control, odometry and lidar are computed for the whole fleet at once.
+pymunk space). Per-robot state lives in the robot table (simd/core/robots.py), one row per
+robot in spawn order, so that control, odometry and lidar are computed for the whole fleet
+at once; each tick hands out a :class:`~simd.core.snapshot.TickSnapshot`.
 """
 
 from __future__ import annotations
 
 import difflib
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,6 +24,8 @@ from simd.core import drive, sensor_model
 from simd.core.lidar import LidarSpec, StaticScene, cast
 from simd.core.models import MODELS, RobotModel
 from simd.core.physics import Physics
+from simd.core.robots import Robot, RobotTable
+from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 
 F64 = npt.NDArray[np.float64]
@@ -51,53 +55,13 @@ class SimConfig:
     lidar: LidarSpec = field(default_factory=LidarSpec)
 
 
-@dataclass
-class Robot:
-    rid: int
-    name: str
-    namespace: str
-    model: RobotModel
-    spawn_pose: tuple[float, float, float]
-    scan_phase: int
-
-
-@dataclass(frozen=True)
-class RobotState:
-    """A robot as reported by list/spawn/delete."""
-
-    name: str
-    namespace: str
-    model: RobotModel
-    x: float
-    y: float
-    yaw: float
-    linear_velocity: float
-    angular_velocity: float
-    spawn_pose: tuple[float, float, float]
-
-
-@dataclass(frozen=True)
-class TickOutput:
-    """What one tick measured: odometry of every robot, scans of those due."""
-
-    tick: int
-    time: float
-    namespaces: list[str]
-    x: F64
-    y: F64
-    yaw: F64
-    linear_x: F64  # body frame
-    linear_y: F64
-    angular_z: F64
-    scan_namespaces: list[str]
-    scans: F32  # (k, samples)
-
-
 def wrap_angle(a: float) -> float:
     return math.atan2(math.sin(a), math.cos(a))
 
 
 class Simulation:
+    """The world and its robots, advanced one fixed tick at a time by the thread that owns it."""
+
     def __init__(self, world: WorldGeometry, config: SimConfig | None = None) -> None:
         self.world = world
         self.config = config or SimConfig()
@@ -106,35 +70,12 @@ class Simulation:
         self.physics = Physics(world, self.config.substeps)
         self.scene = StaticScene(world.segments(), world.circles, self.config.lidar.range_max)
         self.tick = 0
+        self.epoch = 0  # resets so far
         self._seed = self.config.seed
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
-        self._robots: list[Robot] = []
-        # every tick hands out this list: replaced (never changed in place) on spawn and delete
-        self._namespaces: list[str] = []
-        self._by_key: dict[str, Robot] = {}  # names and namespaces share one key space
-        self._row_of: dict[str, int] = {}  # namespace -> row in the state arrays
+        self.robots = RobotTable()
         self._next_rid = 0
         self._phase_load = [0] * self.config.scan_every
-        n = 0
-        self._rid: I64 = np.zeros(n, dtype=np.int64)
-        self._target_v: F64 = np.zeros(n)
-        self._target_w: F64 = np.zeros(n)
-        self._wheel_l: F64 = np.zeros(n)
-        self._wheel_r: F64 = np.zeros(n)
-        self._last_cmd: I64 = np.zeros(n, dtype=np.int64)
-        self._x: F64 = np.zeros(n)
-        self._y: F64 = np.zeros(n)
-        self._yaw: F64 = np.zeros(n)
-        self._vx: F64 = np.zeros(n)
-        self._vy: F64 = np.zeros(n)
-        self._wz: F64 = np.zeros(n)
-        self._sep: F64 = np.zeros(n)
-        self._max_v: F64 = np.zeros(n)
-        self._max_w: F64 = np.zeros(n)
-        self._acc: F64 = np.zeros(n)
-        self._lidar_off: F64 = np.zeros((n, 2))
-        self._outline: F64 = np.zeros((n, 12, 2))
-        self._phase: I64 = np.zeros(n, dtype=np.int64)
 
     # -- queries ----------------------------------------------------------------------
 
@@ -147,34 +88,32 @@ class Simulation:
         return self._seed
 
     def __len__(self) -> int:
-        return len(self._robots)
+        return len(self.robots)
 
     def find(self, key: str) -> Robot | None:
         """A robot by name or namespace."""
-        return self._by_key.get(key)
-
-    def _row(self, robot: Robot) -> int:
-        return self._row_of[robot.namespace]
+        return self.robots.find(key)
 
     def state(self, robot: Robot) -> RobotState:
-        i = self._row(robot)
-        return self._state_at(robot, i)
+        return self._state_at(robot, self.robots.row(robot))
 
     def _state_at(self, robot: Robot, i: int) -> RobotState:
+        t = self.robots
         return RobotState(
             name=robot.name,
             namespace=robot.namespace,
             model=robot.model,
-            x=float(self._x[i]),
-            y=float(self._y[i]),
-            yaw=float(self._yaw[i]),
-            linear_velocity=float(self._vx[i]),
-            angular_velocity=float(self._wz[i]),
+            x=float(t.x[i]),
+            y=float(t.y[i]),
+            yaw=float(t.yaw[i]),
+            linear_velocity=float(t.vx[i]),
+            angular_velocity=float(t.wz[i]),
             spawn_pose=robot.spawn_pose,
+            lateral_velocity=float(t.vy[i]),
         )
 
     def states(self) -> list[RobotState]:
-        return [self._state_at(r, i) for i, r in enumerate(self._robots)]
+        return [self._state_at(r, i) for i, r in enumerate(self.robots.robots)]
 
     # -- spawn / delete -------------------------------------------------------------------
 
@@ -195,13 +134,13 @@ class Simulation:
             v = getattr(req, fname)
             if not math.isfinite(v):
                 raise FleetError(ErrorCode.NON_FINITE, f"{fname} must be finite, got {v}", fname)
-        if len(self._robots) >= self.config.max_robots:
+        if len(self.robots) >= self.config.max_robots:
             raise FleetError(
                 ErrorCode.ROBOT_LIMIT,
                 f"the daemon's robot limit ({self.config.max_robots}) is reached",
             )
         for key, fname in ((name, "name"), (namespace, "namespace")):
-            other = self._by_key.get(key)
+            other = self.robots.find(key)
             if other is not None:
                 raise FleetError(
                     ErrorCode.ALREADY_EXISTS,
@@ -225,7 +164,7 @@ class Simulation:
             if hit < 0:
                 what = "a wall or obstacle"
             else:
-                what = next((f"robot {r.name!r}" for r in self._robots if r.rid == hit), "a robot")
+                what = next((f"robot {r.name!r}" for r in self.robots.robots if r.rid == hit), "a robot")
             raise FleetError(
                 ErrorCode.COLLISION,
                 f"a {model.name} at ({x:g}, {y:g}, yaw {yaw:.3g}) would overlap {what}",
@@ -242,81 +181,63 @@ class Simulation:
         robot = Robot(self._next_rid, name, namespace, model, (x, y, yaw), phase)
         self._next_rid += 1
         self.physics.add_robot(robot.rid, model, x, y, yaw)
-        self._row_of[namespace] = len(self._robots)
-        self._robots.append(robot)
-        self._namespaces = [*self._namespaces, namespace]
-        self._by_key[name] = robot
-        self._by_key[namespace] = robot
-
-        def app(a: npt.NDArray[np.generic], v: object) -> npt.NDArray[np.generic]:
-            return np.concatenate([a, np.asarray([v], dtype=a.dtype)])
-
-        self._rid = app(self._rid, robot.rid)  # type: ignore[assignment]
-        for attr in ("_target_v", "_target_w", "_wheel_l", "_wheel_r", "_vx", "_vy", "_wz"):
-            setattr(self, attr, app(getattr(self, attr), 0.0))
-        self._last_cmd = app(self._last_cmd, self.tick)  # type: ignore[assignment]
-        self._x = app(self._x, x)  # type: ignore[assignment]
-        self._y = app(self._y, y)  # type: ignore[assignment]
-        self._yaw = app(self._yaw, yaw)  # type: ignore[assignment]
-        self._sep = app(self._sep, model.wheel_separation)  # type: ignore[assignment]
-        self._max_v = app(self._max_v, model.max_linear_velocity)  # type: ignore[assignment]
-        self._max_w = app(self._max_w, model.max_angular_velocity)  # type: ignore[assignment]
-        self._acc = app(self._acc, model.max_wheel_acceleration)  # type: ignore[assignment]
-        self._phase = app(self._phase, phase)  # type: ignore[assignment]
-        self._lidar_off = np.vstack([self._lidar_off, np.asarray([model.lidar_offset])])
-        self._outline = np.concatenate([self._outline, model.outline[None]], axis=0)
+        self.robots.append(
+            robot,
+            rid=robot.rid,
+            last_cmd=self.tick,
+            x=x,
+            y=y,
+            yaw=yaw,
+            sep=model.wheel_separation,
+            max_v=model.max_linear_velocity,
+            max_w=model.max_angular_velocity,
+            acc=model.max_wheel_acceleration,
+            lidar_off=model.lidar_offset,
+            outline=model.outline,
+            phase=phase,
+        )
         return robot
 
     def delete(self, key: str) -> RobotState:
         """Remove the robot with this name or namespace; return its last state."""
-        robot = self._by_key.get(key)
+        robot = self.robots.find(key)
         if robot is None:
             raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
-        i = self._row(robot)
-        last = self._state_at(robot, i)
+        last = self.state(robot)
         self.physics.remove_robot(robot.rid)
-        del self._robots[i]
-        self._namespaces = [r.namespace for r in self._robots]
-        self._row_of = {r.namespace: k for k, r in enumerate(self._robots)}
-        del self._by_key[robot.name]
-        self._by_key.pop(robot.namespace, None)
+        self.robots.remove(robot)
         self._phase_load[robot.scan_phase] -= 1
-        for attr in (
-            "_rid", "_target_v", "_target_w", "_wheel_l", "_wheel_r", "_last_cmd", "_x", "_y",
-            "_yaw", "_vx", "_vy", "_wz", "_sep", "_max_v", "_max_w", "_acc", "_phase",
-            "_lidar_off", "_outline",
-        ):  # fmt: skip
-            setattr(self, attr, np.delete(getattr(self, attr), i, axis=0))
         return last
 
     # -- control ------------------------------------------------------------------------
 
     def command(self, robot: Robot, linear_x: float, angular_z: float) -> None:
         """Set a robot's velocity target (clamped later); refreshes its watchdog."""
-        i = self._row(robot)
-        self._target_v[i] = linear_x
-        self._target_w[i] = angular_z
-        self._last_cmd[i] = self.tick
+        i = self.robots.row(robot)
+        t = self.robots
+        t.target_v[i] = linear_x
+        t.target_w[i] = angular_z
+        t.last_cmd[i] = self.tick
 
-    def command_many(self, commands: dict[str, tuple[float, float]]) -> int:
+    def command_many(self, commands: Mapping[str, tuple[float, float]]) -> int:
         """Apply the latest command per namespace; returns how many matched a robot."""
         if not commands:
             return 0
-        row_of = self._row_of
+        t = self.robots
         rows: list[int] = []
         vs: list[float] = []
         ws: list[float] = []
         for ns, (v, w) in commands.items():
-            i = row_of.get(ns)
+            i = t.row_of(ns)
             if i is not None:
                 rows.append(i)
                 vs.append(v)
                 ws.append(w)
         if rows:
             idx = np.asarray(rows)
-            self._target_v[idx] = vs
-            self._target_w[idx] = ws
-            self._last_cmd[idx] = self.tick
+            t.target_v[idx] = vs
+            t.target_w[idx] = ws
+            t.last_cmd[idx] = self.tick
         return len(rows)
 
     def reset(self, seed: int | None = None) -> None:
@@ -327,73 +248,78 @@ class Simulation:
             self._seed = seed
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
         self.tick = 0
-        for i, r in enumerate(self._robots):
-            x, y, yaw = r.spawn_pose
-            self.physics.place(r.rid, x, y, yaw)
-            self._x[i], self._y[i], self._yaw[i] = x, y, yaw
-        for a in (self._target_v, self._target_w, self._wheel_l, self._wheel_r,
-                  self._vx, self._vy, self._wz):  # fmt: skip
+        self.epoch += 1
+        t = self.robots
+        n = len(t)
+        # new arrays, not writes into the old ones: a snapshot handed out may still hold them
+        x, y, yaw = np.empty(n), np.empty(n), np.empty(n)
+        for i, r in enumerate(t.robots):
+            x[i], y[i], yaw[i] = r.spawn_pose
+            self.physics.place(r.rid, *r.spawn_pose)
+        t.x, t.y, t.yaw = x, y, yaw
+        t.vx, t.vy, t.wz = np.zeros(n), np.zeros(n), np.zeros(n)
+        for a in (t.target_v, t.target_w, t.wheel_l, t.wheel_r):
             a[:] = 0.0
-        self._last_cmd[:] = 0
+        t.last_cmd[:] = 0
 
     # -- the tick -------------------------------------------------------------------------
 
-    def step(self) -> TickOutput:
+    def step(self) -> TickSnapshot:
         """Advance one fixed tick; return odometry for all robots and the scans due."""
         cfg = self.config
         dt = cfg.dt
-        v, w, dx, dy = drive.advance(
-            self.tick, cfg.cmd_timeout, dt, self._last_cmd, self._target_v, self._target_w, self._max_v,
-            self._max_w, self._sep, self._acc, self._wheel_l, self._wheel_r, self._yaw,
-        )  # fmt: skip
-        self.physics.step(self._rid, dx / dt, dy / dt, w, dt)
-        x, y, yaw = self.physics.poses(self._rid)
+        t = self.robots
+        v, w, dx, dy = drive.advance(self.tick, cfg.cmd_timeout, dt, t)
+        self.physics.step(t.rid, dx / dt, dy / dt, w, dt)
+        x, y, yaw = self.physics.poses(t.rid)
         # reported twist: the wheels' when motion was free, the achieved motion otherwise
-        self._vx, self._vy, self._wz, self._yaw = drive.report_twist(
-            dt, _FREE_MOTION_TOLERANCE, self._x, self._y, self._yaw, x, y, yaw, v, w, dx, dy
+        t.vx, t.vy, t.wz, t.yaw = drive.report_twist(
+            dt, _FREE_MOTION_TOLERANCE, t.x, t.y, t.yaw, x, y, yaw, v, w, dx, dy
         )
-        self._x, self._y = x, y
+        t.x, t.y = x, y
         self.tick += 1
 
-        due = np.flatnonzero((self.tick - self._phase) % cfg.scan_every == 0)
+        due = np.flatnonzero((self.tick - t.phase) % cfg.scan_every == 0)
         scans = self._scan(due)
-        return TickOutput(
+        return TickSnapshot(
             tick=self.tick,
             time=self.time,
-            namespaces=self._namespaces,
-            x=self._x,
-            y=self._y,
-            yaw=self._yaw,
-            linear_x=self._vx,
-            linear_y=self._vy,
-            angular_z=self._wz,
-            scan_namespaces=[self._namespaces[i] for i in due.tolist()],
+            namespaces=t.namespaces,
+            x=t.x,
+            y=t.y,
+            yaw=t.yaw,
+            linear_x=t.vx,
+            linear_y=t.vy,
+            angular_z=t.wz,
+            scan_namespaces=[t.namespaces[i] for i in due.tolist()],
             scans=scans,
+            epoch=self.epoch,
         )
 
     def _scan(self, rows: I64) -> F32:
         spec = self.config.lidar
         if len(rows) == 0:
             return np.zeros((0, spec.samples), dtype=np.float32)
-        c, s = np.cos(self._yaw), np.sin(self._yaw)
+        t = self.robots
+        c, s = np.cos(t.yaw), np.sin(t.yaw)
         # every robot's outline in the world frame, as segments
-        ox = self._outline[:, :, 0]
-        oy = self._outline[:, :, 1]
-        wx = self._x[:, None] + ox * c[:, None] - oy * s[:, None]
-        wy = self._y[:, None] + ox * s[:, None] + oy * c[:, None]
+        ox = t.outline[:, :, 0]
+        oy = t.outline[:, :, 1]
+        wx = t.x[:, None] + ox * c[:, None] - oy * s[:, None]
+        wy = t.y[:, None] + ox * s[:, None] + oy * c[:, None]
         seg = np.stack([wx, wy, np.roll(wx, -1, axis=1), np.roll(wy, -1, axis=1)], axis=2)
         dyn_segments = seg.reshape(-1, 4)
-        dyn_owner = np.repeat(self._rid, self._outline.shape[1])
-        off = self._lidar_off[rows]
+        dyn_owner = np.repeat(t.rid, t.outline.shape[1])
+        off = t.lidar_off[rows]
         cr, sr = c[rows], s[rows]
         origins = np.stack(
             [
-                self._x[rows] + off[:, 0] * cr - off[:, 1] * sr,
-                self._y[rows] + off[:, 0] * sr + off[:, 1] * cr,
+                t.x[rows] + off[:, 0] * cr - off[:, 1] * sr,
+                t.y[rows] + off[:, 0] * sr + off[:, 1] * cr,
             ],
             axis=1,
         )
-        raw = cast(self.scene, spec, origins, self._yaw[rows], self._rid[rows], dyn_segments, dyn_owner)
+        raw = cast(self.scene, spec, origins, t.yaw[rows], t.rid[rows], dyn_segments, dyn_owner)
         return self._sensor_model(raw)
 
     def _sensor_model(self, raw: F32) -> F32:

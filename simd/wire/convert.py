@@ -30,7 +30,8 @@ from protocol.messages import (
     Vector3,
 )
 from simd.core.lidar import LidarSpec
-from simd.core.sim import ODOM_COVARIANCE_DIAGONAL, RobotState, TickOutput
+from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
+from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 
 
@@ -97,7 +98,7 @@ def odometry(ns: str, stamp: Time, x: float, y: float, yaw: float, vx: float, vy
     )
 
 
-def encode_scans(out: TickOutput, spec: LidarSpec) -> list[bytes]:
+def encode_scans(out: TickSnapshot, spec: LidarSpec) -> list[bytes]:
     """One MessagePack LaserScan per scan in ``out.scan_namespaces`` order, struct by struct:
     the reference that the daemon's byte templates (simd/wire/scan_codec.py) are tested against."""
     stamp = Time.from_seconds(out.time)

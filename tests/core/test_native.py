@@ -8,9 +8,11 @@ import json
 import os
 import subprocess
 import sys
+from dataclasses import dataclass, fields
 
 import msgspec
 import numpy as np
+import numpy.typing as npt
 import pytest
 
 from protocol import Odometry, SpawnRequest
@@ -25,9 +27,32 @@ needs_drive = pytest.mark.skipif(drive._native is None, reason="simd.core._drive
 needs_pack = pytest.mark.skipif(odom_codec._native is None, reason="simd.wire._odompack is not built")
 needs_noise = pytest.mark.skipif(sensor_model._native is None, reason="simd._scannoise is not built")
 DT = 1.0 / 30.0
+F64 = npt.NDArray[np.float64]
 
 
-def drive_inputs(rng: np.random.Generator, n: int) -> list[object]:
+@dataclass
+class Columns:
+    """The robot table's drive columns (drive.DriveColumns), made up for a test."""
+
+    last_cmd: npt.NDArray[np.int64]
+    target_v: F64
+    target_w: F64
+    max_v: F64
+    max_w: F64
+    sep: F64
+    acc: F64
+    wheel_l: F64
+    wheel_r: F64
+    yaw: F64
+
+    def copy(self) -> Columns:
+        return Columns(**{f.name: getattr(self, f.name).copy() for f in fields(self)})
+
+
+TICK, TIMEOUT = 200, 3.0
+
+
+def drive_inputs(rng: np.random.Generator, n: int) -> Columns:
     """Targets that are stale, clamped, snapped, ramped; straight and turning robots."""
     last = rng.integers(0, 200, n).astype(np.int64)
     tv = rng.normal(0, 0.4, n)
@@ -37,12 +62,12 @@ def drive_inputs(rng: np.random.Generator, n: int) -> list[object]:
     wr = wl + rng.normal(0, 0.005, n)  # within the snap tolerance
     wr[n // 2 :] = rng.normal(0, 0.2, n - n // 2)
     sep = rng.choice([0.16, 0.287], n)
-    return [200, 3.0, DT, last, tv, tw, np.full(n, 0.22), np.full(n, 2.84), sep, np.full(n, 1.0), wl, wr,
-            rng.uniform(-4, 4, n)]  # fmt: skip
+    return Columns(last, tv, tw, np.full(n, 0.22), np.full(n, 2.84), sep, np.full(n, 1.0), wl, wr,
+                   rng.uniform(-4, 4, n))  # fmt: skip
 
 
-def copy_args(args: list[object]) -> list[object]:
-    return [a.copy() if isinstance(a, np.ndarray) else a for a in args]
+def advance(cols: Columns, use_native: bool) -> tuple[F64, F64, F64, F64]:
+    return drive.advance(TICK, TIMEOUT, DT, cols, use_native=use_native)
 
 
 @needs_drive
@@ -50,20 +75,20 @@ def test_compiled_drive_update_equals_numpy_bit_for_bit() -> None:
     rng = np.random.default_rng(7)
     for _ in range(20):
         ref = drive_inputs(rng, 257)
-        fast = copy_args(ref)
-        out_ref = drive.advance(*ref, use_native=False)  # type: ignore[arg-type]
-        out_fast = drive.advance(*fast, use_native=True)  # type: ignore[arg-type]
+        fast = ref.copy()
+        out_ref = advance(ref, use_native=False)
+        out_fast = advance(fast, use_native=True)
         for a, b in zip(out_ref, out_fast, strict=True):
             assert np.array_equal(a, b)
-        for k in (4, 5, 10, 11):  # targets zeroed by the watchdog, wheels ramped in place
-            assert np.array_equal(ref[k], fast[k])  # type: ignore[arg-type]
+        for name in ("target_v", "target_w", "wheel_l", "wheel_r"):  # zeroed by the watchdog, ramped in place
+            assert np.array_equal(getattr(ref, name), getattr(fast, name))
 
 
 @needs_drive
 def test_compiled_twist_report_matches_numpy() -> None:
     rng = np.random.default_rng(8)
     n = 300
-    v, w, dx, dy = drive.advance(*drive_inputs(rng, n), use_native=False)  # type: ignore[arg-type]
+    v, w, dx, dy = advance(drive_inputs(rng, n), use_native=False)
     x0, y0, yaw0 = rng.normal(size=(3, n))
     x, y = x0 + dx, y0 + dy
     yaw = yaw0 + w * DT + 2 * np.pi * rng.integers(-1, 2, n)  # wrapped or not
@@ -80,20 +105,20 @@ def test_compiled_twist_report_matches_numpy() -> None:
 
 @needs_drive
 @pytest.mark.parametrize(
-    ("index", "bad", "error"),
+    ("column", "bad", "error"),
     [
-        (4, np.zeros(3), ValueError),  # wrong length
-        (4, np.zeros(8, dtype=np.float32), TypeError),  # the targets too (the watchdog zeroes them)
-        (10, np.zeros(8, dtype=np.float32), TypeError),  # the wheels are written in place: float64 only
-        (10, np.zeros(16)[::2], TypeError),  # not contiguous
-        (11, np.zeros(8).tobytes(), TypeError),  # read-only where the wheels are written
+        ("target_v", np.zeros(3), ValueError),  # wrong length
+        ("target_v", np.zeros(8, dtype=np.float32), TypeError),  # the targets too (the watchdog zeroes them)
+        ("wheel_l", np.zeros(8, dtype=np.float32), TypeError),  # the wheels are written in place: float64 only
+        ("wheel_l", np.zeros(16)[::2], TypeError),  # not contiguous
+        ("wheel_r", np.zeros(8).tobytes(), TypeError),  # read-only where the wheels are written
     ],
 )
-def test_compiled_drive_rejects_bad_buffers(index: int, bad: object, error: type[Exception]) -> None:
-    args = drive_inputs(np.random.default_rng(1), 8)
-    args[index] = bad
+def test_compiled_drive_rejects_bad_buffers(column: str, bad: object, error: type[Exception]) -> None:
+    cols = drive_inputs(np.random.default_rng(1), 8)
+    setattr(cols, column, bad)
     with pytest.raises(error):
-        drive.advance(*args, use_native=True)  # type: ignore[arg-type]
+        advance(cols, use_native=True)
 
 
 @needs_drive
@@ -192,13 +217,12 @@ def test_status_reports_the_path_each_loop_took() -> None:
 @needs_drive
 def test_compiled_paths_take_what_numpy_takes() -> None:
     """float32 positions or an int32 watchdog column work on either path (converted)."""
-    args = drive_inputs(np.random.default_rng(4), 16)
-    ref = copy_args(args)
-    args[3] = args[3].astype(np.int32)  # type: ignore[union-attr]
-    args[12] = args[12].astype(np.float32)  # type: ignore[union-attr]
-    ref[12] = ref[12].astype(np.float32).astype(np.float64)  # type: ignore[union-attr]
-    fast = drive.advance(*args, use_native=True)  # type: ignore[arg-type]
-    for a, b in zip(fast, drive.advance(*ref, use_native=False), strict=True):  # type: ignore[arg-type]
+    cols = drive_inputs(np.random.default_rng(4), 16)
+    ref = cols.copy()
+    cols.last_cmd = cols.last_cmd.astype(np.int32)  # type: ignore[assignment]
+    cols.yaw = cols.yaw.astype(np.float32)  # type: ignore[assignment]
+    ref.yaw = ref.yaw.astype(np.float32).astype(np.float64)
+    for a, b in zip(advance(cols, use_native=True), advance(ref, use_native=False), strict=True):
         assert np.array_equal(a, b)
     out = drive.report_twist(DT, 1e-6, *([np.zeros(3, dtype=np.float32)] * 10), use_native=True)  # type: ignore[arg-type]
     assert all(np.array_equal(o, np.zeros(3)) for o in out)
@@ -214,16 +238,16 @@ def test_compiled_twist_report_rejects_bad_outputs_and_handles_empty() -> None:
     empty = [np.zeros(0)] * 10
     assert all(len(o) == 0 for o in drive.report_twist(DT, 1e-6, *empty, use_native=True))  # type: ignore[arg-type]
     none = drive_inputs(np.random.default_rng(0), 0)
-    assert all(len(o) == 0 for o in drive.advance(*none, use_native=True))  # type: ignore[arg-type]
+    assert all(len(o) == 0 for o in advance(none, use_native=True))
 
 
 @needs_drive
 def test_compiled_clamp_propagates_nan_as_numpy_does() -> None:
-    args = drive_inputs(np.random.default_rng(5), 8)
-    args[6] = np.full(8, np.nan)  # max_v: a NaN limit gives NaN speeds in numpy
-    ref = copy_args(args)
-    fast = drive.advance(*args, use_native=True)  # type: ignore[arg-type]
-    slow = drive.advance(*ref, use_native=False)  # type: ignore[arg-type]
+    cols = drive_inputs(np.random.default_rng(5), 8)
+    cols.max_v = np.full(8, np.nan)  # a NaN limit gives NaN speeds in numpy
+    ref = cols.copy()
+    fast = advance(cols, use_native=True)
+    slow = advance(ref, use_native=False)
     for a, b in zip(fast, slow, strict=True):
         np.testing.assert_array_equal(a, b)
 

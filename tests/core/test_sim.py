@@ -198,7 +198,7 @@ def test_physics_does_not_leak_memory_per_tick() -> None:
     sim = Simulation(load_world("empty"), SimConfig(noise=False))
     sim.spawn(SpawnRequest(name="r", x=0.0, y=0.0))
     physics = sim.physics
-    rids = sim._rid
+    rids = sim.robots.rid
     zero = np.zeros(1)
     for _ in range(2000):  # warm up allocator pools
         physics.step(rids, zero, zero, zero, 1 / 30)

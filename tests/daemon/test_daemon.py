@@ -327,21 +327,6 @@ def test_json_mirrors_flow_only_while_subscribed(daemon: Daemon) -> None:
         assert all(r is None or 0.12 <= r <= 3.5 for r in sc["ranges"])
 
 
-def test_a_tick_without_deleted_robots() -> None:
-    from simd.core.sim import TickOutput
-    from simd.daemon import _without
-
-    a = np.arange(3.0)
-    out = TickOutput(
-        tick=1, time=1 / 30, namespaces=["a", "b", "c"], x=a, y=a + 1, yaw=a + 2,
-        linear_x=a, linear_y=a, angular_z=a, scan_namespaces=["b", "c"],
-        scans=np.zeros((2, 360), dtype=np.float32) + np.array([[1.0], [2.0]], dtype=np.float32),
-    )  # fmt: skip
-    kept = _without(out, {"b"})
-    assert kept.namespaces == ["a", "c"] and kept.x.tolist() == [0.0, 2.0] and kept.y.tolist() == [1.0, 3.0]
-    assert kept.scan_namespaces == ["c"] and kept.scans[:, 0].tolist() == [2.0]
-
-
 def test_spawn_and_delete_churn_while_running(daemon_factory: Callable[..., Daemon]) -> None:
     d = daemon_factory("--world", "empty")
     c = d.client()

@@ -21,11 +21,12 @@ import zenoh
 
 from clients import wait_until
 from protocol import FleetOdometry, FleetScans, Keys, LaserScan, Odometry, SpawnRequest
-from simd.adapters.fleet.bridge import Bridge
+from simd.adapters.fleet.adapter import FleetAdapter
+from simd.adapters.fleet.publisher import Publisher
 from simd.core.lidar import LidarSpec
 from simd.core.sim import Simulation
 from simd.core.worldfile import load_world
-from simd.daemon import Daemon as SimDaemon
+from simd.engine import Engine
 from simd.wire.fleet_codec import encode_fleet_odometry, encode_fleet_scans
 from tests.conftest import Daemon, free_port
 from tests.zraw import client_config, get
@@ -175,28 +176,28 @@ def test_fleet_topics_are_built_only_while_somebody_subscribes() -> None:
     conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
     conf.insert_json5("scouting/multicast/enabled", "false")
     with zenoh.open(conf) as daemon_side:
-        bridge = Bridge(daemon_side, Keys())
+        publisher = Publisher(daemon_side, Keys(), LidarSpec())
         try:
-            assert not bridge.wants_fleet_odom() and not bridge.wants_fleet_scan()
+            assert not publisher.wants_fleet_odom() and not publisher.wants_fleet_scan()
             with zenoh.open(client_config(f"tcp/127.0.0.1:{port}")) as user:
                 sub = user.declare_subscriber("fleet/odometry", lambda s: None)
-                assert wait_until(bridge.wants_fleet_odom, 3.0)
-                assert not bridge.wants_fleet_scan()  # only what is asked for
+                assert wait_until(publisher.wants_fleet_odom, 3.0)
+                assert not publisher.wants_fleet_scan()  # only what is asked for
                 per_robot = user.declare_subscriber("fleet/*/odom", lambda s: None)
                 sub.undeclare()
-                assert wait_until(lambda: not bridge.wants_fleet_odom(), 3.0)  # P/*/odom is not P/odom
+                assert wait_until(lambda: not publisher.wants_fleet_odom(), 3.0)  # P/*/odom is not P/odom
                 per_robot.undeclare()
         finally:
-            bridge.close()
+            publisher.close()
 
 
-# -- the daemon's own tick, in-process, with requests landing between its step and publishing --
+# -- the engine and the fleet adapter in-process, on a real zenoh session ----------------------
 
 
 @contextmanager
-def in_process_daemon(names: list[str]) -> Iterator[tuple[SimDaemon, str]]:
-    """The daemon's loop object on a real zenoh session, ticked by the test itself, so that a
-    request can be made to land exactly between a tick's step and its publishing."""
+def in_process_daemon(names: list[str], **engine_args: Any) -> Iterator[tuple[Engine, FleetAdapter, str]]:
+    """The daemon's engine and adapter on a real zenoh session; the test ticks it itself, or
+    runs its loop in a thread."""
     port = free_port()
     conf = zenoh.Config()
     conf.insert_json5("mode", '"peer"')
@@ -204,63 +205,69 @@ def in_process_daemon(names: list[str]) -> Iterator[tuple[SimDaemon, str]]:
     conf.insert_json5("scouting/multicast/enabled", "false")
     sim = Simulation(load_world("empty"))
     with zenoh.open(conf) as session:
-        keys = Keys()
-        bridge = Bridge(session, keys)
-        daemon = SimDaemon(sim, bridge, keys, rtf=0.0)
+        engine = Engine(sim, **({"rtf": 0.0} | engine_args))
+        adapter = FleetAdapter(session, Keys(), engine)
         for i, n in enumerate(names):
-            sim.spawn(SpawnRequest(name=n, x=-3.0 + i, y=0.0))
-            bridge.add_robot(n)
+            engine.submit(SpawnRequest(name=n, x=-3.0 + i, y=0.0), lambda r: None)
+        engine.serve_pending()
         try:
-            yield daemon, f"tcp/127.0.0.1:{port}"
+            yield engine, adapter, f"tcp/127.0.0.1:{port}"
         finally:
-            bridge.close()
+            adapter.close()
 
 
-def _queue(daemon: SimDaemon, user: zenoh.Session, selector: str, body: object | None = None) -> threading.Thread:
-    """Send a request from a client session and wait until it sits in the daemon's queue
-    (its reply comes when the daemon serves it)."""
-    before = daemon.bridge.requests.qsize()
-    payload = json.dumps(body).encode() if body is not None else None
-    t = threading.Thread(target=get, args=(user, selector, payload, 5.0), daemon=True)
+@contextmanager
+def running(engine: Engine) -> Iterator[None]:
+    """The engine's own loop in a thread, as in simd."""
+    t = threading.Thread(target=engine.run, daemon=True)
     t.start()
-    assert wait_until(lambda: daemon.bridge.requests.qsize() == before + 1, 3.0)
-    return t
+    try:
+        yield
+    finally:
+        engine.stop()
+        t.join(5.0)
 
 
-def _warm_up(daemon: SimDaemon, *received: list[Any]) -> None:
+def _warm_up(engine: Engine, *received: list[Any]) -> None:
     """Tick until every subscriber has received something (a subscription reaches the daemon
     some milliseconds after it is declared), then forget what they received."""
     deadline = time.monotonic() + 5.0
     while not all(received):
         assert time.monotonic() < deadline, "the subscribers received nothing"
-        daemon.tick()
+        engine.tick()
         time.sleep(0.02)
     time.sleep(0.1)
     for r in received:
         r.clear()
 
 
-def test_a_robot_deleted_mid_tick_leaves_both_views_of_that_tick() -> None:
-    with in_process_daemon(["a", "b", "c"]) as (daemon, endpoint), zenoh.open(client_config(endpoint)) as user:
+def test_a_robot_deleted_between_two_ticks_is_in_neither_view_of_the_second() -> None:
+    with (
+        in_process_daemon(["a", "b", "c"], lockstep=True) as (engine, _, endpoint),
+        zenoh.open(client_config(endpoint)) as user,
+    ):
         fleet: list[bytes] = []
         robots: list[str] = []
         _collect(user, "fleet/odometry", fleet, threading.Lock())
         user.declare_subscriber("fleet/*/odom", lambda s: robots.append(str(s.key_expr)))
-        _warm_up(daemon, fleet, robots)
-        t = _queue(daemon, user, "fleet/delete", {"name": "b"})
-        daemon.tick(serve_between=True)  # steps a, b, c; serves the delete; publishes
-        t.join(5.0)
-        assert wait_until(lambda: len(fleet) == 1 and len(robots) == 2, 2.0)
+        _warm_up(engine, fleet, robots)
+        with running(engine):
+            get(user, "fleet/delete", json.dumps({"name": "b"}).encode(), 5.0)
+            get(user, "fleet/sim/step", b'{"ticks": 1}', 5.0)
+            assert wait_until(lambda: len(fleet) == 1 and len(robots) == 2, 2.0)
         time.sleep(0.1)
         last = msgspec.msgpack.decode(fleet[-1], type=FleetOdometry)
         assert last.namespaces == ["a", "c"] and last.array("x").tolist() == [-3.0, -1.0]
         assert sorted(robots) == ["fleet/a/odom", "fleet/c/odom"] and len(fleet) == 1
 
 
-def test_a_tick_made_stale_by_a_reset_and_steps_is_published_by_neither_view() -> None:
-    """Pause, reset and step k served between a tick's step and its publishing, with k such
-    that the tick count comes back to the stale tick's own: its measurements must not go out."""
-    with in_process_daemon(["a"]) as (daemon, endpoint), zenoh.open(client_config(endpoint)) as user:
+def test_after_a_reset_both_views_start_again_from_the_first_tick() -> None:
+    """A running fleet paused, reset and stepped: no tick of before the reset is published
+    after it, and both views count the new run's ticks from one."""
+    with (
+        in_process_daemon(["a"]) as (engine, _, endpoint),
+        zenoh.open(client_config(endpoint)) as user,
+    ):
         fleet: list[bytes] = []
         _collect(user, "fleet/odometry", fleet, threading.Lock())
         stamps: list[float] = []
@@ -268,40 +275,37 @@ def test_a_tick_made_stale_by_a_reset_and_steps_is_published_by_neither_view() -
         user.declare_subscriber(
             "fleet/a/odom", lambda s: stamps.append(dec.decode(s.payload.to_bytes()).header.stamp.to_seconds())
         )
-        daemon.sim.command_many({"a": (0.2, 0.0)})
-        _warm_up(daemon, fleet, stamps)
-        k = daemon.sim.tick
-        daemon.tick(serve_between=True)  # tick k + 1
-        threads = [
-            _queue(daemon, user, "fleet/sim/pause"),
-            _queue(daemon, user, "fleet/sim/reset"),
-            _queue(daemon, user, "fleet/sim/step", {"ticks": k + 2}),
-        ]
-        daemon.tick(serve_between=True)  # tick k + 2, then: pause, reset, ticks 1 .. k + 2 again
-        for t in threads:
-            t.join(5.0)
-        assert daemon.sim.tick == k + 2
+        engine.sim.command_many({"a": (0.2, 0.0)})
+        _warm_up(engine, fleet, stamps)
+        with running(engine):
+            assert wait_until(lambda: len(fleet) > 20, 5.0)
+            get(user, "fleet/sim/pause", None, 5.0)
+            get(user, "fleet/sim/reset", None, 5.0)
+            reply, err = get(user, "fleet/sim/step", b'{"ticks": 7}', 5.0)
+        assert reply is not None and json.loads(reply)["ticks_run"] == 7, err
         time.sleep(0.3)
-        expected = [k + 1, *range(1, k + 3)]
         fleet_ticks = [round(msgspec.msgpack.decode(d, type=FleetOdometry).stamp.to_seconds() * 30) for d in fleet]
-        assert fleet_ticks == expected
-        assert [round(t * 30) for t in stamps if t > 0] == expected  # (the reset re-publishes the spawn pose at 0)
+        robot_ticks = [round(t * 30) for t in stamps]
+        for ticks in (fleet_ticks, robot_ticks):
+            cut = len(ticks) - 7
+            assert ticks[cut:] == list(range(1, 8)), ticks
+            assert ticks[:cut] == list(range(ticks[0], ticks[0] + cut)), ticks  # before: no gap, no repeat
 
 
 def test_the_daemon_builds_fleet_messages_only_while_somebody_subscribes() -> None:
-    with in_process_daemon(["a", "b"]) as (daemon, endpoint):
+    with in_process_daemon(["a", "b"]) as (engine, adapter, endpoint):
         for _ in range(12):
-            daemon.tick()
-        assert daemon.fleet_messages == 0
+            engine.tick()
+        assert adapter.publisher.fleet_messages == 0
         with zenoh.open(client_config(endpoint)) as user:
             got: list[bytes] = []
             _collect(user, "fleet/scans", got, threading.Lock())
-            assert wait_until(daemon.bridge.wants_fleet_scan, 3.0)
+            assert wait_until(adapter.publisher.wants_fleet_scan, 3.0)
             for _ in range(12):  # two 5 Hz periods: both robots scan twice
-                daemon.tick()
-            assert daemon.fleet_messages == 2  # scans only: nobody asked for P/odometry
+                engine.tick()
+            assert adapter.publisher.fleet_messages == 2  # scans only: nobody asked for P/odometry
             assert wait_until(lambda: len(got) >= 1, 2.0)  # (the first may race the subscription)
-        assert wait_until(lambda: not daemon.bridge.wants_fleet_scan(), 3.0)
+        assert wait_until(lambda: not adapter.publisher.wants_fleet_scan(), 3.0)
         for _ in range(12):
-            daemon.tick()
-        assert daemon.fleet_messages == 2
+            engine.tick()
+        assert adapter.publisher.fleet_messages == 2

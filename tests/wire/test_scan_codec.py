@@ -8,14 +8,14 @@ import pytest
 
 from protocol.messages import LaserScan
 from simd.core.lidar import LidarSpec
-from simd.core.sim import TickOutput
+from simd.core.snapshot import TickSnapshot
 from simd.wire import convert
 from simd.wire.scan_codec import ScanEncoder
 
 
 def reference(names: list[str], t: float, scans: np.ndarray, spec: LidarSpec) -> list[bytes]:
     z = np.zeros(0)
-    out = TickOutput(0, t, [], z, z, z, z, z, z, names, scans)
+    out = TickSnapshot(0, t, [], z, z, z, z, z, z, names, scans)
     return convert.encode_scans(out, spec)
 
 

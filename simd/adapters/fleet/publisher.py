@@ -1,0 +1,207 @@
+"""Messages out: every robot's odometry and scans, the fleet topics, the clock, JSON mirrors.
+
+One tick's messages are encoded from the snapshot's columns in one pass (simd/wire) and put
+back to back, which amortises zenoh's wake-ups. Each robot has declared publishers (a
+declared key is routed once, a key string at every put) and a liveliness token; the latest
+message of each robot is kept to answer ``get P/<ns>/odom`` and ``get P/<ns>/scan``.
+Everything here runs on one thread at a time (the adapter's), in the engine's order.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import msgspec
+import zenoh
+
+from protocol.codec import encode, media_type
+from protocol.keys import Keys
+from protocol.messages import LaserScan, Odometry, Time
+from simd.core.lidar import LidarSpec
+from simd.core.snapshot import RobotState, TickSnapshot
+from simd.wire import convert
+from simd.wire.fleet_codec import encode_fleet_odometry, encode_fleet_scans
+from simd.wire.odom_codec import OdometryEncoder
+from simd.wire.scan_codec import ScanEncoder
+
+log = logging.getLogger(__name__)
+
+
+def to_json(topic: str, msgpack_payload: bytes) -> bytes:
+    """A published message as JSON for people; a scan's ranges become a list (null = inf)."""
+    if topic == "scan":
+        scan = msgspec.msgpack.decode(msgpack_payload, type=LaserScan)
+        d = msgspec.structs.asdict(scan)
+        d["ranges"] = [None if not math.isfinite(r) else round(r, 4) for r in scan.ranges_array().tolist()]
+        d["intensities"] = scan.intensities_array().tolist()
+        return msgspec.json.encode(d)
+    return msgspec.json.encode(msgspec.msgpack.decode(msgpack_payload, type=Odometry))
+
+
+def _matching(pub: zenoh.Publisher) -> bool:
+    return bool(pub.matching_status.matching)  # type: ignore[attr-defined]  # the stub says bool
+
+
+class Publisher:
+    """The daemon's outgoing zenoh entities and the latest message of every robot."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, spec: LidarSpec) -> None:
+        self.session = session
+        self.keys = keys
+        self.spec = spec
+        self.fleet_messages = 0  # P/odometry and P/scans messages sent (built only when wanted)
+        self._fleet_failed = False
+        self._odom = OdometryEncoder()
+        self._scans = ScanEncoder(spec)
+        self._odom_pub: dict[str, zenoh.Publisher] = {}
+        self._scan_pub: dict[str, zenoh.Publisher] = {}
+        self._tokens: dict[str, zenoh.LivelinessToken] = {}
+        # the put methods of the odometry publishers in the order of the last tick's namespaces:
+        # looked up once per fleet change instead of once per robot per tick
+        self._odom_puts: tuple[list[str], list[Any]] = ([], [])
+        self.latest_odom: dict[str, bytes] = {}
+        self.latest_scan: dict[str, bytes] = {}
+        k = keys
+        self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
+        # The fleet topics (one message a tick for the whole fleet) are built only while their
+        # publisher has a match, like the JSON mirrors below; scans at the scans' priority.
+        self.fleet_odom_pub = session.declare_publisher(k.fleet_odom, encoding="application/msgpack")
+        self.fleet_scan_pub = session.declare_publisher(
+            k.fleet_scan, encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+        )
+        # JSON mirrors for people with zenoh's CLI (whose subscriber cannot read MessagePack).
+        # These wildcard publishers only probe for subscribers: the mirrors cost nothing
+        # until somebody subscribes to a P/<ns>/odom/json or P/<ns>/scan/json key.
+        self._odom_json_probe = session.declare_publisher(f"{k.prefix}/*/odom/json")
+        self._scan_json_probe = session.declare_publisher(f"{k.prefix}/*/scan/json")
+        self._entities: list[Any] = [
+            session.declare_queryable(k.odom("*"), self._latest_answerer(self.latest_odom, "odom")),
+            session.declare_queryable(k.scan("*"), self._latest_answerer(self.latest_scan, "scan")),
+            self.clock_pub,
+            self.fleet_odom_pub,
+            self.fleet_scan_pub,
+            self._odom_json_probe,
+            self._scan_json_probe,
+        ]
+
+    # -- robots -------------------------------------------------------------------------------
+
+    def add_robot(self, state: RobotState, time: float) -> None:
+        """Declare the robot's entities and put its first odometry, so a robot is never
+        silent, even while paused."""
+        ns = state.namespace
+        k = self.keys
+        self._odom_pub[ns] = self.session.declare_publisher(k.odom(ns), encoding="application/msgpack")
+        # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a tick's
+        # scans and its odometry each get a full queue, and odometry goes first when a link is
+        # congested (it is what closes a control loop).
+        self._scan_pub[ns] = self.session.declare_publisher(
+            k.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+        )
+        self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
+        self._odom_puts = ([], [])
+        first = encode(convert.odometry(ns, Time.from_seconds(time), state.x, state.y, state.yaw, 0.0, 0.0, 0.0))
+        self._put_odom([ns], [first])
+
+    def remove_robot(self, ns: str) -> None:
+        for table in (self._odom_pub, self._scan_pub):
+            pub = table.pop(ns, None)
+            if pub is not None:
+                pub.undeclare()
+        tok = self._tokens.pop(ns, None)
+        if tok is not None:
+            tok.undeclare()
+        self.latest_odom.pop(ns, None)
+        self.latest_scan.pop(ns, None)
+        self._odom.forget(ns)
+        self._scans.forget(ns)
+        self._odom_puts = ([], [])
+
+    # -- ticks ----------------------------------------------------------------------------------
+
+    def publish_tick(self, snap: TickSnapshot) -> None:
+        """Every robot's odometry, the scans due, then the fleet topics, of one tick."""
+        odom = self._odom.encode(
+            snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
+        )
+        self._put_odom(snap.namespaces, odom)
+        if snap.scan_namespaces:
+            scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
+            spubs = self._scan_pub
+            for ns, data in zip(snap.scan_namespaces, scans, strict=True):
+                spubs[ns].put(data)
+            self.latest_scan.update(zip(snap.scan_namespaces, scans, strict=True))
+            if _matching(self._scan_json_probe):
+                self._mirror("scan", snap.scan_namespaces, scans)
+        self._publish_fleet_topics(snap)
+
+    def _put_odom(self, namespaces: list[str], odom: list[bytes]) -> None:
+        layout, puts = self._odom_puts
+        if namespaces != layout:  # cheap when equal: the simulation hands out the same list
+            puts = [self._odom_pub[ns].put for ns in namespaces]
+            self._odom_puts = (list(namespaces), puts)
+        for put, data in zip(puts, odom, strict=True):
+            put(data)
+        self.latest_odom.update(zip(namespaces, odom, strict=True))
+        if _matching(self._odom_json_probe):
+            self._mirror("odom", namespaces, odom)
+
+    def _publish_fleet_topics(self, snap: TickSnapshot) -> None:
+        """The tick as one message per topic, for whoever follows the whole fleet (if anyone).
+
+        After the per-robot topics, and never fatal: these are a convenience on top of the
+        contract, so a failure here is logged (once) and the simulation goes on.
+        """
+        try:
+            if snap.namespaces and _matching(self.fleet_odom_pub):
+                s = snap
+                cols = (s.x, s.y, s.yaw, s.linear_x, s.linear_y, s.angular_z)
+                self.fleet_odom_pub.put(encode_fleet_odometry(s.namespaces, s.time, *cols))
+                self.fleet_messages += 1
+            if snap.scan_namespaces and _matching(self.fleet_scan_pub):
+                self.fleet_scan_pub.put(encode_fleet_scans(self.spec, snap.scan_namespaces, snap.time, snap.scans))
+                self.fleet_messages += 1
+        except Exception:
+            if not self._fleet_failed:
+                log.exception("the fleet topics failed (logged once; the robots' own topics go on)")
+            self._fleet_failed = True
+
+    def _mirror(self, topic: str, namespaces: list[str], payloads: list[bytes]) -> None:
+        for ns, data in zip(namespaces, payloads, strict=True):
+            self.session.put(f"{self.keys.prefix}/{ns}/{topic}/json", to_json(topic, data), encoding="application/json")
+
+    def wants_fleet_odom(self) -> bool:
+        """True while somebody subscribes to ``P/odometry``."""
+        return _matching(self.fleet_odom_pub)
+
+    def wants_fleet_scan(self) -> bool:
+        """True while somebody subscribes to ``P/scans``."""
+        return _matching(self.fleet_scan_pub)
+
+    def publish_clock(self, payload: bytes) -> None:
+        self.clock_pub.put(payload)
+
+    # -- the latest message, on request (zenoh threads) -------------------------------------------
+
+    def _latest_answerer(self, cache: dict[str, bytes], topic: str) -> Any:
+        def answer(query: zenoh.Query) -> None:
+            with query:
+                json_wanted = query.parameters.get("format") == "json"
+                for ns, data in list(cache.items()):
+                    key = f"{self.keys.prefix}/{ns}/{topic}"
+                    if query.key_expr.intersects(zenoh.KeyExpr(key)):
+                        body = to_json(topic, data) if json_wanted else data
+                        query.reply(key, body, encoding=media_type("json" if json_wanted else "msgpack"))
+
+        return answer
+
+    def close(self) -> None:
+        """Undeclare the fixed entities; the robots' go with the session."""
+        for ent in self._entities:
+            try:
+                ent.undeclare()
+            except zenoh.ZError:
+                pass
+        self._entities.clear()

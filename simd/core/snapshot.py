@@ -1,0 +1,58 @@
+"""What the core hands out: one tick's measurements, and robots as list/spawn/delete see them.
+
+A :class:`TickSnapshot` is the only thing that leaves the simulation thread each tick. Its
+arrays are never written again once it is handed out (the step replaces whole columns rather
+than writing into them), so an adapter may keep it and read it on another thread while the
+next tick runs.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from simd.core.models import RobotModel
+
+F64 = npt.NDArray[np.float64]
+F32 = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class RobotState:
+    """A robot as reported by list/spawn/delete."""
+
+    name: str
+    namespace: str
+    model: RobotModel
+    x: float
+    y: float
+    yaw: float
+    linear_velocity: float
+    angular_velocity: float
+    spawn_pose: tuple[float, float, float]
+    lateral_velocity: float = 0.0  # body-frame y: nonzero only while pushed sideways
+
+
+@dataclass(frozen=True)
+class TickSnapshot:
+    """What one tick measured: odometry of every robot, scans of those due.
+
+    Rows of the odometry columns follow ``namespaces``; rows of ``scans`` follow
+    ``scan_namespaces``. ``epoch`` counts resets: two snapshots with the same tick number
+    but different epochs belong to different runs of the world.
+    """
+
+    tick: int
+    time: float
+    namespaces: list[str]
+    x: F64
+    y: F64
+    yaw: F64
+    linear_x: F64  # body frame
+    linear_y: F64
+    angular_z: F64
+    scan_namespaces: list[str]
+    scans: F32  # (k, samples)
+    epoch: int = 0

@@ -1,0 +1,391 @@
+"""The engine: one thread owns the simulation, paces it, and serves typed requests.
+
+It wakes for whichever comes first, the next tick's deadline or a request, so spawns are
+answered within milliseconds while ticks stay on a fixed sim-time grid. Each tick's snapshot
+goes to every adapter (simd/engine/ports.py), which is all they see of the core. In lockstep
+(or while paused) time advances only through step requests; a long step runs in slices of
+about ``SLICE_SECONDS`` with the other requests served between them, so no request freezes
+the daemon, and a pause, resume or reset cancels what is left of it.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from protocol.control import (
+    MAX_STEP_TICKS,
+    Clock,
+    ClockRequest,
+    DeleteRequest,
+    ListRequest,
+    PauseRequest,
+    Request,
+    ResetRequest,
+    ResumeRequest,
+    SpawnRequest,
+    StepRequest,
+    WorldRequest,
+)
+from protocol.errors import ErrorCode, FleetError
+from protocol.messages import Time
+from simd.core.sim import Simulation
+from simd.core.snapshot import TickSnapshot
+from simd.engine.ports import (
+    Adapter,
+    Deleted,
+    Reply,
+    Result,
+    RobotList,
+    ScanRow,
+    Spawned,
+    StepResult,
+    WorldReset,
+)
+
+log = logging.getLogger(__name__)
+
+#: Requests waiting for the simulation thread beyond this are refused as busy.
+MAX_PENDING_REQUESTS = 4096
+#: Ticks between clock messages: 10 Hz, as gazebo_ros publishes /clock.
+CLOCK_EVERY = 3
+#: If the loop falls this many ticks behind its schedule it stops trying to catch up.
+MAX_LAG_TICKS = 5
+#: Wall time a step runs before the requests that arrived meanwhile are served.
+SLICE_SECONDS = 0.02
+
+
+@dataclass
+class _Call:
+    request: Request
+    reply: Reply
+
+
+@dataclass
+class _StepJob:
+    """A step request being run, slice by slice."""
+
+    request: StepRequest
+    reply: Reply
+    commands: dict[str, tuple[float, float]]
+    ran: int = 0
+
+
+@dataclass
+class RtfMeter:
+    """Sim seconds per wall second over the last ticks (about two seconds of them)."""
+
+    window: collections.deque[tuple[float, float]] = field(default_factory=lambda: collections.deque(maxlen=64))
+
+    def restart(self, wall: float, sim_time: float) -> None:
+        """Time starts running from here: the next tick already gives a measurement."""
+        self.window.clear()
+        self.window.append((wall, sim_time))
+
+    def record(self, wall: float, sim_time: float) -> None:
+        self.window.append((wall, sim_time))
+
+    def measure(self) -> float | None:
+        """The measured factor, or None before two points (right after a resume)."""
+        if len(self.window) < 2:
+            return None
+        (w0, s0), (w1, s1) = self.window[0], self.window[-1]
+        return (s1 - s0) / (w1 - w0) if w1 > w0 else None
+
+
+class Engine:
+    """Runs a :class:`Simulation` for its adapters; see the module docstring."""
+
+    def __init__(
+        self,
+        sim: Simulation,
+        *,
+        rtf: float = 1.0,
+        lockstep: bool = False,
+        paused: bool = False,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.sim = sim
+        self.rtf = rtf
+        self.lockstep = lockstep
+        self.paused = paused or lockstep
+        self.adapters: list[Adapter] = []
+        self.stop_event = threading.Event()
+        self._wall = clock
+        self._inbox: queue.Queue[_Call | None] = queue.Queue(MAX_PENDING_REQUESTS)
+        self._steps: collections.deque[_StepJob] = collections.deque()
+        self._pending_commands: dict[str, tuple[float, float]] = {}
+        self._latest_scan: dict[str, ScanRow] = {}
+        self._rtf = RtfMeter()
+        self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
+            SpawnRequest: self._spawn,
+            DeleteRequest: self._delete,
+            ListRequest: self._list,
+            WorldRequest: self._world,
+            ClockRequest: self._clock,
+            PauseRequest: self._pause,
+            ResumeRequest: self._resume,
+            ResetRequest: self._reset,
+            StepRequest: self._step,
+        }
+
+    def attach(self, adapter: Adapter) -> None:
+        self.adapters.append(adapter)
+
+    # -- from any thread --------------------------------------------------------------------
+
+    def submit(self, request: Request, reply: Reply) -> None:
+        """Queue a request for the simulation thread; refused at once (busy) when the queue
+        is full, so a flood never grows without bound."""
+        try:
+            self._inbox.put_nowait(_Call(request, reply))
+        except queue.Full:
+            reply(FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry"))
+
+    def stop(self) -> None:
+        self.stop_event.set()
+        try:
+            self._inbox.put_nowait(None)  # wake the loop
+        except queue.Full:
+            pass
+
+    # -- status -----------------------------------------------------------------------------
+
+    def clock(self) -> Clock:
+        sim = self.sim
+        measured = None if self.paused else self._rtf.measure()
+        return Clock(
+            clock=Time.from_seconds(sim.time),
+            tick=sim.tick,
+            dt=sim.config.dt,
+            paused=self.paused,
+            lockstep=self.lockstep,
+            # until the first tick after a resume there is nothing to measure: the target
+            real_time_factor=0.0 if self.paused else (self.rtf if measured is None else measured),
+            target_real_time_factor=self.rtf,
+            robots=len(sim),
+            dropped_commands=sum(a.dropped_commands() for a in self.adapters),
+        )
+
+    # -- the loop ---------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Serve and tick until :meth:`stop`; then cancel what is left and close the adapters."""
+        period = self.sim.config.dt / self.rtf if self.rtf > 0 else 0.0
+        next_tick = self._wall()
+        self._rtf.restart(next_tick, self.sim.time)
+        try:
+            while not self.stop_event.is_set():
+                if self._steps:
+                    self._run_slice()
+                    self.serve_pending()
+                    continue
+                now = self._wall()
+                timeout = 0.25 if self.paused else max(0.0, next_tick - now)
+                call = self._next_call(timeout)
+                if call is not None:
+                    self._serve(call)
+                    continue
+                if self.paused:
+                    self._gather_commands()  # keep the adapters' buffers drained while time stands still
+                    next_tick = self._wall()
+                    continue
+                if self._wall() >= next_tick:
+                    self.tick()
+                    next_tick += period
+                    now = self._wall()
+                    if now - next_tick > MAX_LAG_TICKS * period:
+                        next_tick = now  # fell behind: run slower than real time rather than burst
+        finally:
+            self._cancel_steps()
+            self.serve_pending()
+
+    def _next_call(self, timeout: float) -> _Call | None:
+        try:
+            call = self._inbox.get(timeout=timeout) if timeout > 0 else self._inbox.get_nowait()
+        except queue.Empty:
+            return None
+        if call is None:  # stop() woke us
+            self.stop_event.set()
+        return call
+
+    def serve_pending(self) -> None:
+        """Serve every request waiting now (the loop does this between ticks and slices)."""
+        while (call := self._next_call(0.0)) is not None:
+            self._serve(call)
+
+    def _gather_commands(self) -> dict[str, tuple[float, float]]:
+        cmds = self._pending_commands
+        for a in self.adapters:
+            cmds.update(a.take_commands())
+        return cmds
+
+    def tick(self) -> TickSnapshot:
+        """Apply the newest commands, advance one tick, hand the snapshot to every adapter."""
+        sim = self.sim
+        sim.command_many(self._gather_commands())
+        self._pending_commands = {}
+        if self._steps:  # a step's own commands hold for all of its ticks
+            sim.command_many(self._steps[0].commands)
+        snap = sim.step()
+        for i, ns in enumerate(snap.scan_namespaces):
+            self._latest_scan[ns] = ScanRow(snap.time, snap.scans[i])
+        for a in self.adapters:
+            a.on_tick(snap)
+        self._rtf.record(self._wall(), snap.time)
+        if snap.tick % CLOCK_EVERY == 0:
+            self._announce_clock()
+        return snap
+
+    def _announce_clock(self) -> None:
+        clock = self.clock()
+        for a in self.adapters:
+            a.on_clock(clock)
+
+    # -- requests ---------------------------------------------------------------------------
+
+    def _serve(self, call: _Call) -> None:
+        self._gather_commands()  # drained before each request: the clock's dropped count is current
+        handler = self._handlers.get(type(call.request))
+        try:
+            if handler is None:
+                raise TypeError(f"no handler for {type(call.request).__name__}")
+            result = handler(call.request, call.reply)
+        except FleetError as e:
+            log.info("%s refused: %s", type(call.request).__name__, e)
+            _send(call.reply, e)
+            return
+        except Exception as e:  # our bug: the daemon goes on, the client is told
+            log.exception("%s failed", type(call.request).__name__)
+            _send(call.reply, FleetError(ErrorCode.INTERNAL, f"internal error: {type(e).__name__}: {e}"))
+            return
+        if result is not None:  # None: the handler replies later (a step)
+            _send(call.reply, result)
+
+    def _spawn(self, req: SpawnRequest, reply: Reply) -> Result:
+        robot = self.sim.spawn(req)
+        state = self.sim.state(robot)
+        self._event(Spawned(state, self.sim.time))
+        log.info("spawned %s (%s) at (%.3f, %.3f, %.3f) ns=%s", robot.name, robot.model.name,
+                 state.x, state.y, state.yaw, robot.namespace)  # fmt: skip
+        return state
+
+    def _delete(self, req: DeleteRequest, reply: Reply) -> Result:
+        last = self.sim.delete(req.name)
+        self._latest_scan.pop(last.namespace, None)
+        self._pending_commands.pop(last.namespace, None)
+        self._event(Deleted(last))
+        log.info("deleted %s", last.name)
+        return last
+
+    def _list(self, req: ListRequest, reply: Reply) -> Result:
+        return RobotList(self.sim.time, self.sim.states())
+
+    def _world(self, req: WorldRequest, reply: Reply) -> Result:
+        return self.sim.world
+
+    def _clock(self, req: ClockRequest, reply: Reply) -> Result:
+        return self.clock()
+
+    def _pause(self, req: PauseRequest, reply: Reply) -> Result:
+        self._cancel_steps()
+        self.paused = True
+        self._announce_clock()
+        return self.clock()
+
+    def _resume(self, req: ResumeRequest, reply: Reply) -> Result:
+        if self.lockstep:
+            raise FleetError(
+                ErrorCode.NOT_ALLOWED,
+                "the daemon runs in lockstep: time advances only through sim/step",
+            )
+        self._cancel_steps()
+        self.paused = False
+        self._rtf.restart(self._wall(), self.sim.time)
+        self._announce_clock()
+        return self.clock()
+
+    def _reset(self, req: ResetRequest, reply: Reply) -> Result:
+        self._cancel_steps()
+        self.sim.reset(req.seed)
+        self._gather_commands()  # commands sent before the reset do not outlive it
+        self._pending_commands = {}
+        self._latest_scan.clear()
+        self._event(WorldReset(self.sim.epoch))
+        self._rtf.restart(self._wall(), self.sim.time)
+        self._announce_clock()
+        return self.clock()
+
+    def _step(self, req: StepRequest, reply: Reply) -> Result | None:
+        if not self.paused:
+            raise FleetError(
+                ErrorCode.NOT_ALLOWED,
+                "step needs a paused simulation or --lockstep (pause it first with sim/pause)",
+            )
+        if not 1 <= req.ticks <= MAX_STEP_TICKS:
+            raise FleetError(
+                ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks"
+            )
+        commands: dict[str, tuple[float, float]] = {}
+        for ns, tw in req.cmd_vel.items():
+            v, w = float(tw.linear.x), float(tw.angular.z)
+            if not (math.isfinite(v) and math.isfinite(w)):
+                raise FleetError(ErrorCode.NON_FINITE, f"cmd_vel for {ns!r} is not finite", "cmd_vel")
+            if self.sim.robots.row_of(ns) is None:
+                raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", "cmd_vel")
+            commands[ns] = (v, w)
+        for ns in req.observe:
+            if self.sim.find(ns) is None:
+                raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
+        self._steps.append(_StepJob(req, reply, commands))
+        return None
+
+    def _run_slice(self) -> None:
+        """Run the current step for about SLICE_SECONDS (at least one tick)."""
+        job = self._steps[0]
+        end = self._wall() + SLICE_SECONDS
+        while job.ran < job.request.ticks and not self.stop_event.is_set():
+            self.tick()
+            job.ran += 1
+            if self._wall() >= end:
+                break
+        if job.ran >= job.request.ticks:
+            self._steps.popleft()
+            _send(job.reply, self._step_result(job, cancelled=False))
+
+    def _cancel_steps(self) -> None:
+        while self._steps:
+            job = self._steps.popleft()
+            _send(job.reply, self._step_result(job, cancelled=True))
+
+    def _step_result(self, job: _StepJob, cancelled: bool) -> StepResult:
+        states = {}
+        scans = {}
+        for key in job.request.observe:
+            robot = self.sim.find(key)
+            if robot is None:  # deleted during the step
+                continue
+            states[key] = self.sim.state(robot)
+            scan = self._latest_scan.get(robot.namespace)
+            if scan is not None:
+                scans[key] = scan
+        return StepResult(self.clock(), job.ran, cancelled, states, scans)
+
+    def _event(self, event: Spawned | Deleted | WorldReset) -> None:
+        for a in self.adapters:
+            a.on_event(event)
+
+
+def _send(reply: Reply, result: Result | FleetError) -> None:
+    """Reply, and never let an adapter's failure to reply stop the simulation thread."""
+    try:
+        reply(result)
+    except Exception:
+        log.exception("a reply failed")

@@ -1,0 +1,111 @@
+"""The seam between the engine and its adapters: what crosses it, in both directions.
+
+The engine owns the simulation on one thread. An adapter maps it to one outside world (the
+fleet protocol over zenoh today; ROS 2, a recorder or other daemons next) and needs only
+this module: it receives every tick's :class:`~simd.core.snapshot.TickSnapshot`, the events
+between ticks and the clock, and gives back commands (newest per namespace) and requests
+(typed, decoded at its edge) with a function to reply through. Nothing here knows a
+transport or a wire format, so adding an adapter touches no core or engine file.
+
+Threads: ``on_*`` and ``take_commands`` are called on the simulation thread and must return
+quickly (hand work to a thread of the adapter's own); ``Engine.submit`` may be called from
+any thread; a :data:`Reply` is called exactly once, on the simulation thread, after every
+``on_*`` call that the request caused.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+import numpy.typing as npt
+
+from protocol.control import Clock
+from protocol.errors import FleetError
+from simd.core.snapshot import RobotState, TickSnapshot
+from simd.core.worldfile import WorldGeometry
+
+F32 = npt.NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class Spawned:
+    """A robot joined at sim ``time``; it stands at its spawn pose, at rest."""
+
+    robot: RobotState
+    time: float
+
+
+@dataclass(frozen=True)
+class Deleted:
+    """A robot left; ``robot`` is its last state."""
+
+    robot: RobotState
+
+
+@dataclass(frozen=True)
+class WorldReset:
+    """Time went back to zero and every robot to its spawn pose (``epoch`` counts resets)."""
+
+    epoch: int
+
+
+Event = Spawned | Deleted | WorldReset
+
+
+@dataclass(frozen=True)
+class ScanRow:
+    """A robot's latest scan: the sensor-model ranges of the tick at sim ``time``."""
+
+    time: float
+    ranges: F32
+
+
+@dataclass(frozen=True)
+class RobotList:
+    """The answer to a list request: every robot, in spawn order, at sim ``time``."""
+
+    time: float
+    robots: list[RobotState]
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """The answer to a step: the clock after it, the ticks that ran, and observations."""
+
+    clock: Clock
+    ticks_run: int
+    cancelled: bool
+    states: dict[str, RobotState] = field(default_factory=dict)
+    scans: dict[str, ScanRow] = field(default_factory=dict)
+
+
+#: What a request is answered with: a core or engine value, or the error that refused it.
+Result = RobotState | RobotList | WorldGeometry | Clock | StepResult
+Reply = Callable[[Result | FleetError], None]
+
+
+class Adapter(Protocol):
+    """One outside world, as the engine sees it."""
+
+    def on_tick(self, snapshot: TickSnapshot) -> None:
+        """A tick ran; ``snapshot`` is immutable and may be kept."""
+
+    def on_event(self, event: Event) -> None:
+        """Something changed between ticks (called before the reply to the request that did it)."""
+
+    def on_clock(self, clock: Clock) -> None:
+        """The clock, at 10 Hz of sim time and whenever pause, resume or reset change it."""
+
+    def take_commands(self) -> Mapping[str, tuple[float, float]]:
+        """The newest (linear x, angular z) per namespace since the last call."""
+        ...
+
+    def dropped_commands(self) -> int:
+        """Commands this adapter refused (undecodable, not finite) so far, for the clock."""
+        ...
+
+    def close(self) -> None:
+        """Stop: undeclare, join threads. Called once, on the thread that ran the engine."""
