@@ -17,7 +17,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 import msgspec
@@ -31,6 +31,7 @@ from protocol.control import (
     RobotList,
     RobotRecord,
     SpawnRequest,
+    StepReply,
     StepRequest,
     WorldInfo,
 )
@@ -191,11 +192,19 @@ class FleetClient:
         ticks: int = 1,
         cmd_vel: dict[str, tuple[float, float]] | None = None,
         timeout: float | None = None,
-    ) -> Clock:
-        """Advance ``ticks`` ticks of a paused or lockstep daemon, applying ``cmd_vel``
-        ({namespace: (linear, angular)}) first. Returns after the ticks ran."""
+        *,
+        observe: Iterable[str] = (),
+    ) -> StepReply:
+        """Advance ``ticks`` ticks of a paused or lockstep daemon and return once they ran.
+
+        ``cmd_vel`` ({namespace: (linear, angular)}) holds for every tick of the step.
+        ``observe`` names robots whose odometry and latest scan come back in the reply
+        (``reply.observations[name].odom`` / ``.scan``), with no further round trip. The reply
+        is the clock after the step, with ``ticks_run`` (fewer than asked, and ``cancelled``,
+        when somebody paused, resumed or reset the daemon meanwhile)."""
         cmds = {ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()}
-        return self._query(self.keys.step, StepRequest(ticks=ticks, cmd_vel=cmds), Clock, timeout)
+        req = StepRequest(ticks=ticks, cmd_vel=cmds, observe=list(observe))
+        return self._query(self.keys.step, req, StepReply, timeout)
 
     # -- motion ---------------------------------------------------------------------------
 
@@ -312,16 +321,34 @@ class FleetClient:
     def scan_stream(self, namespace: str, timeout: float | None = 5.0) -> Iterator[tuple[str, LaserScan]]:
         return self._iterate("scan", namespace, LaserScan, timeout)
 
+    def _wait(self, topic: str, namespace: str, type_: type[T], timeout: float) -> T:
+        """The next message on a robot's topic; on a paused or lockstep daemon, where nothing
+        new comes until somebody steps it, the latest one."""
+        q: queue.Queue[T] = queue.Queue(maxsize=1)
+
+        def put(ns: str, msg: T) -> None:
+            try:
+                q.put_nowait(msg)
+            except queue.Full:
+                pass
+
+        with self._subscribe(topic, namespace, type_, put):
+            if self.clock().paused:
+                latest = self._latest(topic, namespace, type_)
+                if latest is not None:
+                    return latest
+            try:
+                return q.get(timeout=timeout)
+            except queue.Empty:
+                raise FleetError(ErrorCode.TIMEOUT, f"no {topic} from {namespace!r} within {timeout:g} s") from None
+
     def wait_odom(self, namespace: str, timeout: float = 5.0) -> Odometry:
-        """The next odometry message of a robot."""
-        for _, msg in self.odom_stream(namespace, timeout):
-            return msg
-        raise FleetError(ErrorCode.TIMEOUT, f"no odometry from {namespace!r} within {timeout:g} s")
+        """The next odometry message of a robot (its latest while the daemon is paused)."""
+        return self._wait("odom", namespace, Odometry, timeout)
 
     def wait_scan(self, namespace: str, timeout: float = 5.0) -> LaserScan:
-        for _, msg in self.scan_stream(namespace, timeout):
-            return msg
-        raise FleetError(ErrorCode.TIMEOUT, f"no scan from {namespace!r} within {timeout:g} s")
+        """The next scan of a robot (its latest while the daemon is paused)."""
+        return self._wait("scan", namespace, LaserScan, timeout)
 
     # -- the whole fleet, one message a tick --------------------------------------------------
 
@@ -370,12 +397,19 @@ class FleetClient:
             except queue.Empty:
                 raise FleetError(ErrorCode.TIMEOUT, f"no fleet odometry within {timeout:g} s") from None
 
+    def _latest(self, topic: str, namespace: str, type_: type[T]) -> T | None:
+        for r in self.session.get(f"{self.keys.prefix}/{namespace}/{topic}", timeout=self.timeout):
+            if r.ok is not None:
+                return decode(r.ok.payload.to_bytes(), type_)
+        return None
+
     def latest_odom(self, namespace: str) -> Odometry | None:
         """The daemon's most recent odometry of a robot (a query, no subscription)."""
-        for r in self.session.get(f"{self.keys.odom(namespace)}", timeout=self.timeout):
-            if r.ok is not None:
-                return decode(r.ok.payload.to_bytes(), Odometry)
-        return None
+        return self._latest("odom", namespace, Odometry)
+
+    def latest_scan(self, namespace: str) -> LaserScan | None:
+        """The daemon's most recent scan of a robot (None before its first scan)."""
+        return self._latest("scan", namespace, LaserScan)
 
 
 def _short(e: BaseException) -> str:

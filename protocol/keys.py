@@ -11,7 +11,7 @@ key                    declared by simd as         payload     reply / notes
 ``P/sim/pause``        queryable                   (none)      Clock
 ``P/sim/resume``       queryable                   (none)      Clock
 ``P/sim/reset``        queryable                   ResetRequest   Clock
-``P/sim/step``         queryable                   StepRequest    Clock, after the ticks ran
+``P/sim/step``         queryable                   StepRequest    StepReply, after the ticks ran
 ``P/<ns>/cmd_vel``     subscriber                  Twist
 ``P/<ns>/odom``        publisher 30 Hz + queryable Odometry    a get returns the latest message
 ``P/<ns>/scan``        publisher 5 Hz + queryable  LaserScan   a get returns the latest message

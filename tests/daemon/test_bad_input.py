@@ -262,3 +262,118 @@ def test_daemon_keeps_serving_after_a_client_vanishes_mid_request(
     assert d.alive()
     time.sleep(0.1)
     assert c.robots()
+
+
+# -- one packet must not kill, reset or freeze the daemon -------------------------------------
+
+DEEP_MSGPACK = b"\x81\xa1x" + b"\x91" * 1000 + b"\xc0"  # {"x": [[[...nil...]]]}, 1 000 deep
+HOSTILE_BODIES = [
+    ("msgpack nested 1 000 deep", DEEP_MSGPACK),
+    ("msgpack nested 100 000 deep", b"\x81\xa1x" + b"\x91" * 100_000 + b"\xc0"),
+    ("json nested 1 000 deep", b'{"x":' + b"[" * 1000 + b"]" * 1000 + b"}"),
+    ("json nested 100 000 deep", b'{"x":' + b"[" * 100_000 + b"]" * 100_000 + b"}"),
+    # in the fields the requests read (unknown fields are skipped unread, as for any message)
+    ("invalid utf-8 in json", b'{"name": "\xff\xfe", "ticks": "\xff", "seed": "\xff"}'),
+    ("invalid utf-8 in a json key", b'{"\xff": 1}'),
+    ("5 MB of json", b'{"name": "' + b"a" * (5 << 20) + b'"}'),
+    ("a huge array", msgspec.msgpack.encode({"name": "a", "x": list(range(100_000))})),
+]
+
+
+# a Twist skips fields it does not know without looking inside them: these are bad in its own
+HOSTILE_TWISTS = [
+    *HOSTILE_BODIES[:4],
+    HOSTILE_BODIES[6],
+    ("invalid utf-8 where a number goes", b'{"linear": {"x": "\xff\xfe"}}'),
+    ("a huge array where a number goes", msgspec.msgpack.encode({"linear": {"x": list(range(100_000))}})),
+]
+
+
+@pytest.mark.parametrize(("case", "body"), HOSTILE_TWISTS, ids=[c for c, _ in HOSTILE_TWISTS])
+def test_hostile_cmd_vel_is_dropped_and_the_daemon_lives(
+    populated: tuple[Daemon, FleetClient], case: str, body: bytes
+) -> None:
+    d, c = populated
+    before = world_state(c)
+    dropped = c.clock().dropped_commands
+    with raw_session(d.endpoint) as s:
+        pubs = [s.declare_publisher(k) for k in ("fleet/tb3_0/cmd_vel", "fleet/ghost/cmd_vel")]
+        # a session a moment old may not know the daemon's subscriber yet, and drop a put
+        assert wait_until(lambda: all(p.matching_status.matching for p in pubs), 5.0)
+        for p in pubs:  # (the second for a robot that does not exist)
+            p.put(body)
+        assert wait_until(lambda: c.clock().dropped_commands >= dropped + 2, 5.0), case
+    c.step(3)
+    assert d.alive() and world_state(c) == before
+    assert "Traceback" not in d.log()
+
+
+QUERY_CASES = [
+    (key, case, body)
+    for key in ("fleet/spawn", "fleet/delete", "fleet/sim/step", "fleet/sim/reset", "fleet/robots")
+    for case, body in HOSTILE_BODIES[::2] + HOSTILE_BODIES[1:5:2]
+    if not (key == "fleet/robots" and "utf-8" in case)  # a list request reads no field
+]
+
+
+@pytest.mark.parametrize(("key", "case", "body"), QUERY_CASES, ids=[f"{k} {c}" for k, c, _ in QUERY_CASES])
+def test_hostile_query_bodies_get_a_structured_error_not_an_internal_one(
+    populated: tuple[Daemon, FleetClient], key: str, case: str, body: bytes
+) -> None:
+    d, c = populated
+    before = world_state(c)
+    with raw_session(d.endpoint) as s:
+        ok, err = get(s, key, body, 10.0)
+    assert ok is None and err is not None, case
+    reply = decode_reply(err)
+    assert reply["code"] in ("malformed", "too_large") and "internal" not in reply["message"], reply
+    assert d.alive() and world_state(c) == before
+    assert "Traceback" not in d.log()
+
+
+def test_a_wildcard_get_reads_and_never_acts(daemon_factory: Any) -> None:
+    """``get fleet/**`` (or ``fleet/sim/*``) with a body each action would accept: the
+    read-only keys answer, no action runs."""
+    d = daemon_factory("--world", "empty")
+    c = d.client()
+    c.spawn("a", 0.0, 0.0)
+    c.drive("a", 0.2, 0.0)
+    assert wait_until(lambda: c.clock().tick > 30, 5.0)
+    body = b'{"name": "intruder", "ticks": 5, "seed": 3}'
+    with raw_session(d.endpoint) as s:
+        keys = set()
+        for selector in ("fleet/**", "fleet/sim/*", "fleet/*", "**"):
+            for r in s.get(selector, payload=body, timeout=3.0):
+                if r.ok is not None:
+                    keys.add(str(r.ok.key_expr))
+    clock = c.clock()
+    assert not clock.paused and clock.tick > 30  # neither paused nor reset
+    assert [r.name for r in c.robots()] == ["a"]  # nobody spawned, nobody deleted
+    assert {"fleet/robots", "fleet/world", "fleet/clock", "fleet/a/odom"} <= keys
+    assert not keys & {"fleet/spawn", "fleet/delete", "fleet/sim/pause", "fleet/sim/reset", "fleet/sim/step"}
+
+
+def test_a_huge_step_freezes_nothing_and_a_pause_cancels_it(daemon_factory: Any) -> None:
+    d = daemon_factory("--lockstep", "--world", "empty")
+    c = d.client()
+    c.spawn("a", 0.0, 0.0)
+    done: list[object] = []
+    with raw_session(d.endpoint) as s:
+        s.get(
+            "fleet/sim/step?format=json",
+            zenoh.handlers.Callback(lambda r: done.append(r.ok.payload.to_bytes() if r.ok else r.err)),
+            payload=b'{"ticks": 1000000}',
+            timeout=60,
+        )
+        assert wait_until(lambda: c.clock().tick > 0, 5.0)
+        first = c.clock().tick
+        c.spawn("b", 2.0, 0.0)  # served between two slices of the step
+        assert wait_until(lambda: c.clock().tick > first, 5.0)  # and the step goes on
+        c.drive("b", 0.1, 0.0)
+        paused = c.pause()
+        assert wait_until(lambda: bool(done), 5.0)
+    reply = json.loads(done[0])  # type: ignore[arg-type]
+    assert reply["cancelled"] is True and 0 < reply["ticks_run"] < 1_000_000
+    assert reply["tick"] == reply["ticks_run"] == paused.tick == c.clock().tick  # the step stopped there
+    assert [r.name for r in c.robots()] == ["a", "b"]
+    assert d.alive()
