@@ -40,8 +40,8 @@ s = zenoh.open(c)
 n = [0, 0]
 def odom(sample): n[0] += 1
 def scan(sample): n[1] += 1
-s.declare_subscriber("fleet/*/odom", odom)
-s.declare_subscriber("fleet/*/scan", scan)
+s.declare_subscriber("%s", odom)
+s.declare_subscriber("%s", scan)
 print("READY", flush=True)
 sys.stdin.readline()
 print(n[0], n[1], flush=True)
@@ -67,6 +67,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--substeps", type=int, default=None, help="pymunk steps per tick (default: SimConfig's)")
     ap.add_argument("--iterations", type=int, default=None, help="pymunk solver iterations (default: Physics')")
+    ap.add_argument(
+        "--follow", choices=("robots", "fleet"), default="robots",
+        help="what the subscriber takes: every robot's own topics, or the fleet topics (default: %(default)s)",
+    )  # fmt: skip
     args = ap.parse_args(argv)
 
     import zenoh
@@ -92,9 +96,11 @@ def main(argv: list[str] | None = None) -> int:
     conf.insert_json5("transport/link/tx/queue/size/data", "16")
     conf.insert_json5("transport/link/tx/queue/size/data_low", "16")
     session = zenoh.open(conf)
+    topics = ("fleet/*/odom", "fleet/*/scan") if args.follow == "robots" else ("fleet/odometry", "fleet/scans")
     adapter: Any = None
     sub = subprocess.Popen(
-        [sys.executable, "-c", _SUBSCRIBER % endpoint], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        [sys.executable, "-c", _SUBSCRIBER % (endpoint, *topics)],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
     )
     try:
         assert sub.stdout is not None and sub.stdin is not None
@@ -172,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
         mean = statistics.fmean(vals) * (len(vals) / n)  # per tick, also for phases not run every tick
         print(f"{name:18s} {statistics.median(vals) * 1e3:10.3f} {mean * 1e3:9.3f} {mean / total * 100:5.0f}%")
     if len(got) == 2:
-        print(f"subscriber received {int(got[0])} odometry and {int(got[1])} scans")
+        print(f"subscriber received {int(got[0])} {topics[0]} and {int(got[1])} {topics[1]} messages")
     return 0
 
 

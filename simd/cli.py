@@ -174,6 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         if adapter is not None:
             adapter.close()
+        sim.close()
         session.close()
     log.info("stopped at sim time %.3f s", sim.time)
     return 0

@@ -11,6 +11,7 @@ from __future__ import annotations
 import difflib
 import math
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,6 +54,9 @@ class SimConfig:
     max_robots: int = 5000
     scan_every: int = 6  # ticks between scans of one robot: 5 Hz at 30 Hz ticks
     lidar: LidarSpec = field(default_factory=LidarSpec)
+    #: cast the scans on a thread of their own, beside the next tick's physics (both release
+    #: the GIL): the same scans, bit for bit, since the lidar's jobs run in tick order
+    lidar_thread: bool = True
 
 
 def wrap_angle(a: float) -> float:
@@ -76,6 +80,8 @@ class Simulation:
         self.robots = RobotTable()
         self._next_rid = 0
         self._phase_load = [0] * self.config.scan_every
+        self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
+        self._last_scans: Future[F32] | None = None
 
     # -- queries ----------------------------------------------------------------------
 
@@ -246,6 +252,7 @@ class Simulation:
             if seed < 0:
                 raise FleetError(ErrorCode.INVALID_VALUE, "seed must be >= 0", "seed")
             self._seed = seed
+        self._finish_scans()  # the lidar draws noise from the generator about to be replaced
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
         self.tick = 0
         self.epoch += 1
@@ -280,7 +287,14 @@ class Simulation:
         self.tick += 1
 
         due = np.flatnonzero((self.tick - t.phase) % cfg.scan_every == 0)
-        scans = self._scan(due)
+        scans: F32 | Future[F32]
+        if len(due) == 0:
+            scans = np.zeros((0, cfg.lidar.samples), dtype=np.float32)
+        elif self._lidar is None:
+            scans = self._scan(due, t.x, t.y, t.yaw, t.rid, t.outline, t.lidar_off)
+        else:  # the columns are replaced, never written, from tick to tick: safe to read there
+            scans = self._lidar.submit(self._scan, due, t.x, t.y, t.yaw, t.rid, t.outline, t.lidar_off)
+            self._last_scans = scans
         return TickSnapshot(
             tick=self.tick,
             time=self.time,
@@ -296,31 +310,41 @@ class Simulation:
             epoch=self.epoch,
         )
 
-    def _scan(self, rows: I64) -> F32:
+    def _scan(self, rows: I64, x: F64, y: F64, yaw: F64, rid: I64, outline: F64, lidar_off: F64) -> F32:
+        """The scans of the robots in ``rows``, against every robot's outline at (x, y, yaw)."""
         spec = self.config.lidar
-        if len(rows) == 0:
-            return np.zeros((0, spec.samples), dtype=np.float32)
-        t = self.robots
-        c, s = np.cos(t.yaw), np.sin(t.yaw)
+        c, s = np.cos(yaw), np.sin(yaw)
         # every robot's outline in the world frame, as segments
-        ox = t.outline[:, :, 0]
-        oy = t.outline[:, :, 1]
-        wx = t.x[:, None] + ox * c[:, None] - oy * s[:, None]
-        wy = t.y[:, None] + ox * s[:, None] + oy * c[:, None]
+        ox = outline[:, :, 0]
+        oy = outline[:, :, 1]
+        wx = x[:, None] + ox * c[:, None] - oy * s[:, None]
+        wy = y[:, None] + ox * s[:, None] + oy * c[:, None]
         seg = np.stack([wx, wy, np.roll(wx, -1, axis=1), np.roll(wy, -1, axis=1)], axis=2)
         dyn_segments = seg.reshape(-1, 4)
-        dyn_owner = np.repeat(t.rid, t.outline.shape[1])
-        off = t.lidar_off[rows]
+        dyn_owner = np.repeat(rid, outline.shape[1])
+        off = lidar_off[rows]
         cr, sr = c[rows], s[rows]
         origins = np.stack(
             [
-                t.x[rows] + off[:, 0] * cr - off[:, 1] * sr,
-                t.y[rows] + off[:, 0] * sr + off[:, 1] * cr,
+                x[rows] + off[:, 0] * cr - off[:, 1] * sr,
+                y[rows] + off[:, 0] * sr + off[:, 1] * cr,
             ],
             axis=1,
         )
-        raw = cast(self.scene, spec, origins, t.yaw[rows], t.rid[rows], dyn_segments, dyn_owner)
+        raw = cast(self.scene, spec, origins, yaw[rows], rid[rows], dyn_segments, dyn_owner)
         return self._sensor_model(raw)
+
+    def _finish_scans(self) -> None:
+        """Wait for the lidar's queued scans (they draw from the noise generator)."""
+        if self._last_scans is not None:
+            self._last_scans.result()
+            self._last_scans = None
+
+    def close(self) -> None:
+        """Finish the lidar's work and stop its thread (the simulation is not used after)."""
+        self._finish_scans()
+        if self._lidar is not None:
+            self._lidar.shutdown(wait=True)
 
     def _sensor_model(self, raw: F32) -> F32:
         """Gazebo RaySensor masking and noise (simd/core/sensor_model.py)."""

@@ -142,12 +142,13 @@ class Engine:
     # -- from any thread --------------------------------------------------------------------
 
     def submit(self, request: Request, reply: Reply) -> None:
-        """Queue a request for the simulation thread; refused at once (busy) when the queue
-        is full, so a flood never grows without bound."""
+        """Queue a request for the simulation thread, which calls ``reply`` once. Raises
+        FleetError (busy) at once when the queue is full, so a flood never grows without
+        bound and ``reply`` is never called for it."""
         try:
             self._inbox.put_nowait(_Call(request, reply))
         except queue.Full:
-            reply(FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry"))
+            raise FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry") from None
 
     def stop(self) -> None:
         self.stop_event.set()
@@ -236,7 +237,7 @@ class Engine:
             sim.command_many(self._steps[0].commands)
         snap = sim.step()
         for i, ns in enumerate(snap.scan_namespaces):
-            self._latest_scan[ns] = ScanRow(snap.time, snap.scans[i])
+            self._latest_scan[ns] = ScanRow(snap, i)
         for a in self.adapters:
             a.on_tick(snap)
         self._rtf.record(self._wall(), snap.time)

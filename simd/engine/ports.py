@@ -9,8 +9,8 @@ transport or a wire format, so adding an adapter touches no core or engine file.
 
 Threads: ``on_*`` and ``take_commands`` are called on the simulation thread and must return
 quickly (hand work to a thread of the adapter's own); ``Engine.submit`` may be called from
-any thread; a :data:`Reply` is called exactly once, on the simulation thread, after every
-``on_*`` call that the request caused.
+any thread, and either raises at once (busy) or calls the :data:`Reply` exactly once, on the
+simulation thread, after every ``on_*`` call that the request caused.
 """
 
 from __future__ import annotations
@@ -57,10 +57,20 @@ Event = Spawned | Deleted | WorldReset
 
 @dataclass(frozen=True)
 class ScanRow:
-    """A robot's latest scan: the sensor-model ranges of the tick at sim ``time``."""
+    """A robot's latest scan: row ``row`` of a tick's scans (read when asked for: the lidar
+    may still be casting it)."""
 
-    time: float
-    ranges: F32
+    snapshot: TickSnapshot
+    row: int
+
+    @property
+    def time(self) -> float:
+        return self.snapshot.time
+
+    @property
+    def ranges(self) -> F32:
+        row: F32 = self.snapshot.scans[self.row]
+        return row
 
 
 @dataclass(frozen=True)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import msgspec
+import numpy as np
+import numpy.typing as npt
 
 from protocol.control import (
     Bounds,
@@ -98,23 +100,29 @@ def odometry(ns: str, stamp: Time, x: float, y: float, yaw: float, vx: float, vy
     )
 
 
+def laser_scan(ns: str, stamp: Time, spec: LidarSpec, ranges: npt.NDArray[np.float32]) -> LaserScan:
+    """One robot's scan as the protocol's ``LaserScan`` (ranges little-endian float32)."""
+    return LaserScan(
+        header=Header(stamp=stamp, frame_id=f"{ns}/base_scan"),
+        angle_min=spec.angle_min,
+        angle_max=spec.angle_max,
+        angle_increment=spec.angle_increment,
+        range_min=spec.range_min,
+        range_max=spec.range_max,
+        ranges=ranges.astype("<f4", copy=False).tobytes(),
+    )
+
+
+def odometry_row(snap: TickSnapshot, i: int) -> Odometry:
+    """Row ``i`` of a tick as the protocol's ``Odometry``."""
+    return odometry(
+        snap.namespaces[i], Time.from_seconds(snap.time), float(snap.x[i]), float(snap.y[i]), float(snap.yaw[i]),
+        float(snap.linear_x[i]), float(snap.linear_y[i]), float(snap.angular_z[i]),
+    )  # fmt: skip
+
+
 def encode_scans(out: TickSnapshot, spec: LidarSpec) -> list[bytes]:
     """One MessagePack LaserScan per scan in ``out.scan_namespaces`` order, struct by struct:
     the reference that the daemon's byte templates (simd/wire/scan_codec.py) are tested against."""
     stamp = Time.from_seconds(out.time)
-    enc = _encoder.encode
-    ranges = out.scans.astype("<f4", copy=False)
-    return [
-        enc(
-            LaserScan(
-                header=Header(stamp=stamp, frame_id=f"{ns}/base_scan"),
-                angle_min=spec.angle_min,
-                angle_max=spec.angle_max,
-                angle_increment=spec.angle_increment,
-                range_min=spec.range_min,
-                range_max=spec.range_max,
-                ranges=ranges[i].tobytes(),
-            )
-        )
-        for i, ns in enumerate(out.scan_namespaces)
-    ]
+    return [_encoder.encode(laser_scan(ns, stamp, spec, out.scans[i])) for i, ns in enumerate(out.scan_namespaces)]

@@ -19,8 +19,8 @@ from simd.core.worldfile import load_world, world_from_dict
 MULTI = [(-2.0, -0.5), (0.5, -2.0), (2.0, 0.5), (-0.5, 2.0)]
 
 
-def fleet(seed: int = 7, noise: bool = True) -> Simulation:
-    sim = Simulation(load_world("turtlebot3_world"), SimConfig(seed=seed, noise=noise))
+def fleet(seed: int = 7, noise: bool = True, lidar_thread: bool = True) -> Simulation:
+    sim = Simulation(load_world("turtlebot3_world"), SimConfig(seed=seed, noise=noise, lidar_thread=lidar_thread))
     for i, (x, y) in enumerate(MULTI, 1):
         sim.spawn(SpawnRequest(name=f"burger_{i}", namespace=f"TB3_{i}", x=x, y=y))
     return sim
@@ -46,6 +46,26 @@ def test_same_seed_same_commands_identical_odometry_and_scans() -> None:
     assert sum(len(s) for s in s1) == 150 * 4 // 6  # every robot scans at 5 Hz
     _, s3 = rollout(fleet(seed=4), 150)
     assert not all(np.array_equal(a, b) for a, b in zip(s1, s3, strict=True))
+
+
+def test_the_lidar_thread_gives_the_scans_of_the_simulation_thread_bit_for_bit() -> None:
+    """Scans read only at the end, so that the lidar's jobs queue up behind the ticks, and a
+    reset with jobs still queued (they draw from the noise generator it replaces)."""
+
+    def run(lidar_thread: bool) -> list[np.ndarray]:
+        sim = fleet(seed=5, lidar_thread=lidar_thread)
+        snaps = []
+        for k in range(90):
+            sim.command_many({f"TB3_{i}": (0.2, 0.5 * math.sin(k / 9 + i)) for i in range(1, 5)})
+            snaps.append(sim.step())
+            if k == 44:
+                sim.reset()
+        sim.close()
+        return [np.concatenate([s.x, s.y, s.yaw, s.scans.reshape(-1)]) for s in snaps]
+
+    threaded, inline = run(True), run(False)
+    assert all(np.array_equal(a, b) for a, b in zip(threaded, inline, strict=True))
+    assert sum(a.size for a in threaded) > 90 * 12 + 4 * 360  # scans were taken
 
 
 def test_reset_replays_the_same_run() -> None:

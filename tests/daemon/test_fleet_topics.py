@@ -296,6 +296,7 @@ def test_the_daemon_builds_fleet_messages_only_while_somebody_subscribes() -> No
     with in_process_daemon(["a", "b"]) as (engine, adapter, endpoint):
         for _ in range(12):
             engine.tick()
+        assert adapter.outbox.flush()
         assert adapter.publisher.fleet_messages == 0
         with zenoh.open(client_config(endpoint)) as user:
             got: list[bytes] = []
@@ -303,9 +304,34 @@ def test_the_daemon_builds_fleet_messages_only_while_somebody_subscribes() -> No
             assert wait_until(adapter.publisher.wants_fleet_scan, 3.0)
             for _ in range(12):  # two 5 Hz periods: both robots scan twice
                 engine.tick()
+            assert adapter.outbox.flush()
             assert adapter.publisher.fleet_messages == 2  # scans only: nobody asked for P/odometry
             assert wait_until(lambda: len(got) >= 1, 2.0)  # (the first may race the subscription)
         assert wait_until(lambda: not adapter.publisher.wants_fleet_scan(), 3.0)
         for _ in range(12):
             engine.tick()
+        assert adapter.outbox.flush()
         assert adapter.publisher.fleet_messages == 2
+
+
+def test_robots_own_messages_are_encoded_only_while_somebody_subscribes_and_gets_still_answer() -> None:
+    with in_process_daemon(["a", "b"]) as (engine, adapter, endpoint), zenoh.open(client_config(endpoint)) as user:
+        pub = adapter.publisher
+        spawned = pub.odom_puts  # each robot's first odometry goes out at its spawn
+        for _ in range(13):
+            engine.tick()
+        assert adapter.outbox.flush()
+        assert pub.odom_puts == spawned  # nobody listens: nothing encoded, nothing put
+        ok, _ = get(user, "fleet/a/odom")  # yet the latest is there, at the latest tick
+        assert ok is not None and round(msgspec.msgpack.decode(ok, type=Odometry).header.stamp.to_seconds() * 30) == 13
+        ok, _ = get(user, "fleet/b/scan")
+        assert ok is not None and len(msgspec.msgpack.decode(ok, type=LaserScan).ranges_array()) == 360
+        got: list[bytes] = []
+        _collect(user, "fleet/a/odom", got, threading.Lock())
+        assert wait_until(lambda: pub._odom_probe.matching_status.matching, 3.0)
+        _warm_up(engine, got)
+        engine.tick()
+        assert adapter.outbox.flush() and wait_until(lambda: len(got) == 1, 2.0)
+        assert pub.odom_puts > spawned
+        ok, _ = get(user, "fleet/a/odom")
+        assert ok == got[-1]  # a get answers the bytes the topic carried

@@ -15,7 +15,10 @@ from simd.wire.scan_codec import ScanEncoder
 
 def reference(names: list[str], t: float, scans: np.ndarray, spec: LidarSpec) -> list[bytes]:
     z = np.zeros(0)
-    out = TickSnapshot(0, t, [], z, z, z, z, z, z, names, scans)
+    out = TickSnapshot(
+        tick=0, time=t, namespaces=[], x=z, y=z, yaw=z, linear_x=z, linear_y=z, angular_z=z,
+        scan_namespaces=names, scans=scans,
+    )  # fmt: skip
     return convert.encode_scans(out, spec)
 
 

@@ -6,12 +6,20 @@ edge (requests.py) and submitted to the engine with a reply that maps the engine
 (commands.py); ticks, events and the clock go out through the publisher (publisher.py).
 Output and replies leave in the engine's order, so a spawn's reply always follows the
 robot's first odometry and a delete's reply its last.
+
+The encoding and the puts run on the adapter's own thread (:class:`Outbox`), so that the
+simulation thread goes on with the next tick meanwhile: the daemon then uses both cores.
+Everything the adapter sends goes through that one queue, in order; the queue is short, so a
+publisher that falls behind slows the simulation down instead of piling up ticks.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Mapping
+import queue
+import threading
+from collections.abc import Callable, Mapping
+from functools import partial
 from typing import Any
 
 import zenoh
@@ -20,7 +28,7 @@ from protocol.codec import encode
 from protocol.control import Clock, Observation, Request, RobotList, StepReply
 from protocol.errors import FleetError
 from protocol.keys import Keys
-from protocol.messages import Header, LaserScan, Time
+from protocol.messages import Time
 from simd.adapters.fleet import requests
 from simd.adapters.fleet.commands import CommandIntake
 from simd.adapters.fleet.publisher import Publisher
@@ -31,6 +39,39 @@ from simd.engine import RobotList as EngineRobotList
 from simd.wire import convert
 
 log = logging.getLogger(__name__)
+
+#: Ticks (and events, replies) waiting for the outbox thread before the simulation waits.
+OUTBOX_DEPTH = 3
+
+
+class Outbox:
+    """One thread that runs what it is given, in order; ``put`` blocks while it is full."""
+
+    def __init__(self, name: str, depth: int = OUTBOX_DEPTH) -> None:
+        self._queue: queue.Queue[Callable[[], object] | None] = queue.Queue(depth)
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def put(self, work: Callable[[], object]) -> None:
+        self._queue.put(work)
+
+    def _run(self) -> None:
+        while (work := self._queue.get()) is not None:
+            try:
+                work()
+            except Exception:  # a failed put or reply must not stop the ones after it
+                log.exception("sending failed")
+
+    def flush(self, timeout: float = 5.0) -> bool:
+        """Wait until everything put so far has run (tests, and a clean shutdown)."""
+        done = threading.Event()
+        self.put(done.set)
+        return done.wait(timeout)
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Run what is queued, then stop."""
+        self._queue.put(None)
+        self._thread.join(timeout)
 
 
 class FleetAdapter:
@@ -44,19 +85,23 @@ class FleetAdapter:
         self._world_info = convert.world_info(engine.sim.world)
         self.publisher = Publisher(session, keys, spec)
         self.commands = CommandIntake(session, keys)
+        self.outbox = Outbox("fleet-out")
         self._queryables: list[Any] = requests.declare(session, keys, self._submit)
         engine.attach(self)
 
     # -- requests (zenoh threads) ---------------------------------------------------------------
 
     def _submit(self, request: Request, pending: requests.Pending) -> None:
-        def reply(result: Result | FleetError) -> None:
+        def send(result: Result | FleetError) -> None:
             if isinstance(result, FleetError):
                 pending.error(result)
             else:
                 pending.ok(self._message(result))
 
-        self.engine.submit(request, reply)
+        try:
+            self.engine.submit(request, lambda result: self.outbox.put(partial(send, result)))
+        except FleetError as e:  # busy: refused on the spot, never queued behind the flood
+            pending.error(e)
 
     def _message(self, result: Result) -> object:
         """The protocol's message for an engine answer."""
@@ -84,15 +129,7 @@ class FleetAdapter:
             row = result.scans.get(key)
             scan = None
             if row is not None:
-                scan = LaserScan(
-                    header=Header(stamp=Time.from_seconds(row.time), frame_id=f"{s.namespace}/base_scan"),
-                    angle_min=spec.angle_min,
-                    angle_max=spec.angle_max,
-                    angle_increment=spec.angle_increment,
-                    range_min=spec.range_min,
-                    range_max=spec.range_max,
-                    ranges=row.ranges.astype("<f4", copy=False).tobytes(),
-                )
+                scan = convert.laser_scan(s.namespace, Time.from_seconds(row.time), spec, row.ranges)
             observations[key] = Observation(odom=odom, scan=scan)
         fields = {f: getattr(result.clock, f) for f in result.clock.__struct_fields__}
         return StepReply(**fields, ticks_run=result.ticks_run, cancelled=result.cancelled, observations=observations)
@@ -100,16 +137,16 @@ class FleetAdapter:
     # -- the engine's side (simulation thread) ----------------------------------------------------
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
-        self.publisher.publish_tick(snapshot)
+        self.outbox.put(partial(self.publisher.publish_tick, snapshot))
 
     def on_event(self, event: Event) -> None:
         if isinstance(event, Spawned):
-            self.publisher.add_robot(event.robot, event.time)
+            self.outbox.put(partial(self.publisher.add_robot, event.robot, event.time))
         elif isinstance(event, Deleted):
-            self.publisher.remove_robot(event.robot.namespace)
+            self.outbox.put(partial(self.publisher.remove_robot, event.robot.namespace))
 
     def on_clock(self, clock: Clock) -> None:
-        self.publisher.publish_clock(encode(clock))
+        self.outbox.put(partial(self.publisher.publish_clock, encode(clock)))
 
     def take_commands(self) -> Mapping[str, tuple[float, float]]:
         return self.commands.take()
@@ -125,4 +162,5 @@ class FleetAdapter:
                 pass
         self._queryables.clear()
         self.commands.close()
+        self.outbox.close()
         self.publisher.close()

@@ -2,15 +2,21 @@
 
 One tick's messages are encoded from the snapshot's columns in one pass (simd/wire) and put
 back to back, which amortises zenoh's wake-ups. Each robot has declared publishers (a
-declared key is routed once, a key string at every put) and a liveliness token; the latest
-message of each robot is kept to answer ``get P/<ns>/odom`` and ``get P/<ns>/scan``.
-Everything here runs on one thread at a time (the adapter's), in the engine's order.
+declared key is routed once, a key string at every put) and a liveliness token.
+
+Nothing is encoded for nobody: a wildcard publisher on ``P/*/odom`` (and one on ``P/*/scan``)
+asks zenoh once a tick whether anyone subscribes to any robot's odometry (scans); when nobody
+does, the per-robot messages are neither encoded nor put, which is most of a tick's sending
+work when clients follow the fleet topics instead. ``get P/<ns>/odom`` and ``get P/<ns>/scan``
+are answered from the latest snapshot, encoded on request: the same bytes the topic carries.
+Everything but those answers runs on one thread at a time (the adapter's), in the engine's order.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import threading
 from typing import Any
 
 import msgspec
@@ -61,8 +67,13 @@ class Publisher:
         # the put methods of the odometry publishers in the order of the last tick's namespaces:
         # looked up once per fleet change instead of once per robot per tick
         self._odom_puts: tuple[list[str], list[Any]] = ([], [])
-        self.latest_odom: dict[str, bytes] = {}
-        self.latest_scan: dict[str, bytes] = {}
+        self.odom_puts = 0  # per-robot odometry messages put (none while nobody subscribes)
+        # what get P/<ns>/odom and P/<ns>/scan answer from, read on zenoh's threads
+        self._latest_lock = threading.Lock()
+        self._latest_tick: TickSnapshot | None = None
+        self._first_odom: dict[str, bytes] = {}  # spawned since the latest tick
+        self._gone: set[str] = set()  # deleted since the latest tick
+        self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}
         k = keys
         self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
         # The fleet topics (one message a tick for the whole fleet) are built only while their
@@ -76,14 +87,19 @@ class Publisher:
         # until somebody subscribes to a P/<ns>/odom/json or P/<ns>/scan/json key.
         self._odom_json_probe = session.declare_publisher(f"{k.prefix}/*/odom/json")
         self._scan_json_probe = session.declare_publisher(f"{k.prefix}/*/scan/json")
+        # the same for the robots' own topics (a subscriber of P/tb3_0/odom or P/** matches too)
+        self._odom_probe = session.declare_publisher(k.odom("*"))
+        self._scan_probe = session.declare_publisher(k.scan("*"))
         self._entities: list[Any] = [
-            session.declare_queryable(k.odom("*"), self._latest_answerer(self.latest_odom, "odom")),
-            session.declare_queryable(k.scan("*"), self._latest_answerer(self.latest_scan, "scan")),
+            session.declare_queryable(k.odom("*"), self._answer_odom),
+            session.declare_queryable(k.scan("*"), self._answer_scan),
             self.clock_pub,
             self.fleet_odom_pub,
             self.fleet_scan_pub,
             self._odom_json_probe,
             self._scan_json_probe,
+            self._odom_probe,
+            self._scan_probe,
         ]
 
     # -- robots -------------------------------------------------------------------------------
@@ -103,6 +119,9 @@ class Publisher:
         self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
         self._odom_puts = ([], [])
         first = encode(convert.odometry(ns, Time.from_seconds(time), state.x, state.y, state.yaw, 0.0, 0.0, 0.0))
+        with self._latest_lock:
+            self._first_odom[ns] = first
+            self._gone.discard(ns)
         self._put_odom([ns], [first])
 
     def remove_robot(self, ns: str) -> None:
@@ -113,8 +132,10 @@ class Publisher:
         tok = self._tokens.pop(ns, None)
         if tok is not None:
             tok.undeclare()
-        self.latest_odom.pop(ns, None)
-        self.latest_scan.pop(ns, None)
+        with self._latest_lock:
+            self._first_odom.pop(ns, None)
+            self._latest_scan.pop(ns, None)
+            self._gone.add(ns)
         self._odom.forget(ns)
         self._scans.forget(ns)
         self._odom_puts = ([], [])
@@ -123,16 +144,22 @@ class Publisher:
 
     def publish_tick(self, snap: TickSnapshot) -> None:
         """Every robot's odometry, the scans due, then the fleet topics, of one tick."""
-        odom = self._odom.encode(
-            snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
-        )
-        self._put_odom(snap.namespaces, odom)
-        if snap.scan_namespaces:
+        with self._latest_lock:
+            self._latest_tick = snap
+            self._first_odom.clear()
+            self._gone.clear()
+            for i, ns in enumerate(snap.scan_namespaces):
+                self._latest_scan[ns] = (snap, i)
+        if _matching(self._odom_probe) or _matching(self._odom_json_probe):
+            odom = self._odom.encode(
+                snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
+            )
+            self._put_odom(snap.namespaces, odom)
+        if snap.scan_namespaces and (_matching(self._scan_probe) or _matching(self._scan_json_probe)):
             scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
             spubs = self._scan_pub
             for ns, data in zip(snap.scan_namespaces, scans, strict=True):
                 spubs[ns].put(data)
-            self.latest_scan.update(zip(snap.scan_namespaces, scans, strict=True))
             if _matching(self._scan_json_probe):
                 self._mirror("scan", snap.scan_namespaces, scans)
         self._publish_fleet_topics(snap)
@@ -144,7 +171,7 @@ class Publisher:
             self._odom_puts = (list(namespaces), puts)
         for put, data in zip(puts, odom, strict=True):
             put(data)
-        self.latest_odom.update(zip(namespaces, odom, strict=True))
+        self.odom_puts += len(odom)
         if _matching(self._odom_json_probe):
             self._mirror("odom", namespaces, odom)
 
@@ -185,17 +212,49 @@ class Publisher:
 
     # -- the latest message, on request (zenoh threads) -------------------------------------------
 
-    def _latest_answerer(self, cache: dict[str, bytes], topic: str) -> Any:
-        def answer(query: zenoh.Query) -> None:
-            with query:
-                json_wanted = query.parameters.get("format") == "json"
-                for ns, data in list(cache.items()):
-                    key = f"{self.keys.prefix}/{ns}/{topic}"
-                    if query.key_expr.intersects(zenoh.KeyExpr(key)):
-                        body = to_json(topic, data) if json_wanted else data
-                        query.reply(key, body, encoding=media_type("json" if json_wanted else "msgpack"))
+    def latest_odom(self, ns: str) -> bytes | None:
+        """The robot's latest odometry, encoded as its topic carried (or would carry) it."""
+        with self._latest_lock:
+            first = self._first_odom.get(ns)
+            snap = None if ns in self._gone else self._latest_tick
+        if first is not None:
+            return first
+        if snap is None or ns not in snap.namespaces:
+            return None
+        return encode(convert.odometry_row(snap, snap.namespaces.index(ns)))
 
-        return answer
+    def latest_scan(self, ns: str) -> bytes | None:
+        with self._latest_lock:
+            found = self._latest_scan.get(ns)
+        if found is None:
+            return None
+        snap, i = found
+        return encode(convert.laser_scan(ns, Time.from_seconds(snap.time), self.spec, snap.scans[i]))
+
+    def _robots_now(self) -> list[str]:
+        with self._latest_lock:
+            snap = self._latest_tick
+            now = set(self._first_odom) | ({*snap.namespaces} - self._gone if snap is not None else set())
+        return sorted(now)
+
+    def _answer(self, query: zenoh.Query, topic: str) -> None:
+        with query:
+            json_wanted = query.parameters.get("format") == "json"
+            lookup = self.latest_odom if topic == "odom" else self.latest_scan
+            for ns in self._robots_now():
+                key = f"{self.keys.prefix}/{ns}/{topic}"
+                if not query.key_expr.intersects(zenoh.KeyExpr(key)):
+                    continue
+                data = lookup(ns)
+                if data is not None:
+                    body = to_json(topic, data) if json_wanted else data
+                    query.reply(key, body, encoding=media_type("json" if json_wanted else "msgpack"))
+
+    def _answer_odom(self, query: zenoh.Query) -> None:
+        self._answer(query, "odom")
+
+    def _answer_scan(self, query: zenoh.Query) -> None:
+        self._answer(query, "scan")
 
     def close(self) -> None:
         """Undeclare the fixed entities; the robots' go with the session."""
