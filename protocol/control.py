@@ -86,7 +86,7 @@ class ResumeRequest(EmptyRequest, kw_only=True):
     """``P/sim/resume``."""
 
 
-#: Every request the daemon serves, by the kind of key it arrives on.
+#: Every request the daemon serves.
 Request = (
     SpawnRequest
     | DeleteRequest
@@ -98,6 +98,21 @@ Request = (
     | ResetRequest
     | StepRequest
 )
+
+#: The request each control key takes, by the key's name in :class:`protocol.keys.Keys`.
+REQUESTS: dict[str, type[Request]] = {
+    "spawn": SpawnRequest,
+    "delete": DeleteRequest,
+    "robots": ListRequest,
+    "world": WorldRequest,
+    "clock": ClockRequest,
+    "pause": PauseRequest,
+    "resume": ResumeRequest,
+    "reset": ResetRequest,
+    "step": StepRequest,
+}
+#: The keys that change the world: they act only on a query for exactly their key.
+ACTIONS = frozenset({"spawn", "delete", "pause", "resume", "reset", "step"})
 
 
 class Topics(msgspec.Struct, kw_only=True):

@@ -306,7 +306,7 @@ class Simulation:
             linear_y=t.vy,
             angular_z=t.wz,
             scan_namespaces=[t.namespaces[i] for i in due.tolist()],
-            scans=scans,
+            scan_rows=scans,
             epoch=self.epoch,
         )
 

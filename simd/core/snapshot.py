@@ -37,6 +37,7 @@ class RobotState:
     lateral_velocity: float = 0.0  # body-frame y: nonzero only while pushed sideways
 
 
+@dataclass(frozen=True, slots=True, kw_only=True)
 class TickSnapshot:
     """What one tick measured: odometry of every robot, scans of those due.
 
@@ -45,55 +46,21 @@ class TickSnapshot:
     but different epochs belong to different runs of the world.
     """
 
-    __slots__ = (
-        "_scans",
-        "angular_z",
-        "epoch",
-        "linear_x",
-        "linear_y",
-        "namespaces",
-        "scan_namespaces",
-        "tick",
-        "time",
-        "x",
-        "y",
-        "yaw",
-    )
-
-    def __init__(
-        self,
-        *,
-        tick: int,
-        time: float,
-        namespaces: list[str],
-        x: F64,
-        y: F64,
-        yaw: F64,
-        linear_x: F64,  # body frame
-        linear_y: F64,
-        angular_z: F64,
-        scan_namespaces: list[str],
-        scans: F32 | Future[F32],  # (k, samples), or the lidar's promise of them
-        epoch: int = 0,
-    ) -> None:
-        self.tick = tick
-        self.time = time
-        self.namespaces = namespaces
-        self.x = x
-        self.y = y
-        self.yaw = yaw
-        self.linear_x = linear_x
-        self.linear_y = linear_y
-        self.angular_z = angular_z
-        self.scan_namespaces = scan_namespaces
-        self._scans = scans
-        self.epoch = epoch
+    tick: int
+    time: float
+    namespaces: list[str]
+    x: F64
+    y: F64
+    yaw: F64
+    linear_x: F64  # body frame
+    linear_y: F64
+    angular_z: F64
+    scan_namespaces: list[str]
+    scan_rows: F32 | Future[F32]  # (k, samples), or the lidar's promise of them
+    epoch: int = 0
 
     @property
     def scans(self) -> F32:
         """The scans of ``scan_namespaces``, row by row (waits for the lidar if need be)."""
-        s = self._scans
-        if isinstance(s, Future):
-            s = s.result()
-            self._scans = s
-        return s
+        rows = self.scan_rows
+        return rows.result() if isinstance(rows, Future) else rows

@@ -17,7 +17,7 @@ def reference(names: list[str], t: float, scans: np.ndarray, spec: LidarSpec) ->
     z = np.zeros(0)
     out = TickSnapshot(
         tick=0, time=t, namespaces=[], x=z, y=z, yaw=z, linear_x=z, linear_y=z, angular_z=z,
-        scan_namespaces=names, scans=scans,
+        scan_namespaces=names, scan_rows=scans,
     )  # fmt: skip
     return convert.encode_scans(out, spec)
 

@@ -31,11 +31,12 @@ from protocol.keys import Keys
 from protocol.messages import Time
 from simd.adapters.fleet import requests
 from simd.adapters.fleet.commands import CommandIntake
-from simd.adapters.fleet.publisher import Publisher
+from simd.adapters.fleet.publisher import Publisher, undeclare_all
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
-from simd.engine import Deleted, Engine, Event, Result, Spawned, StepResult
-from simd.engine import RobotList as EngineRobotList
+from simd.engine import Engine
+from simd.engine.ports import Deleted, Event, Result, Spawned, StepResult
+from simd.engine.ports import RobotList as EngineRobotList
 from simd.wire import convert
 
 log = logging.getLogger(__name__)
@@ -155,12 +156,7 @@ class FleetAdapter:
         return self.commands.dropped
 
     def close(self) -> None:
-        for q in self._queryables:
-            try:
-                q.undeclare()
-            except zenoh.ZError:
-                pass
-        self._queryables.clear()
+        undeclare_all(self._queryables)
         self.commands.close()
         self.outbox.close()
         self.publisher.close()

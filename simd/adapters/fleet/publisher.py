@@ -46,6 +46,16 @@ def to_json(topic: str, msgpack_payload: bytes) -> bytes:
     return msgspec.json.encode(msgspec.msgpack.decode(msgpack_payload, type=Odometry))
 
 
+def undeclare_all(entities: list[Any]) -> None:
+    """Undeclare zenoh entities, going on past any that the session already dropped."""
+    for ent in entities:
+        try:
+            ent.undeclare()
+        except zenoh.ZError:
+            pass
+    entities.clear()
+
+
 def _matching(pub: zenoh.Publisher) -> bool:
     return bool(pub.matching_status.matching)  # type: ignore[attr-defined]  # the stub says bool
 
@@ -258,9 +268,4 @@ class Publisher:
 
     def close(self) -> None:
         """Undeclare the fixed entities; the robots' go with the session."""
-        for ent in self._entities:
-            try:
-                ent.undeclare()
-            except zenoh.ZError:
-                pass
-        self._entities.clear()
+        undeclare_all(self._entities)

@@ -17,18 +17,7 @@ from typing import Any
 import zenoh
 
 from protocol.codec import Format, decode, encode, media_type, sniff_format
-from protocol.control import (
-    ClockRequest,
-    DeleteRequest,
-    ListRequest,
-    PauseRequest,
-    Request,
-    ResetRequest,
-    ResumeRequest,
-    SpawnRequest,
-    StepRequest,
-    WorldRequest,
-)
+from protocol.control import ACTIONS, REQUESTS, Request
 from protocol.errors import FleetError
 from protocol.keys import Keys
 
@@ -39,22 +28,11 @@ class Route:
 
     key: str
     request: type[Any]
-    mutating: bool
+    acts: bool
 
 
 def routes(keys: Keys) -> list[Route]:
-    k = keys
-    return [
-        Route(k.spawn, SpawnRequest, True),
-        Route(k.delete, DeleteRequest, True),
-        Route(k.robots, ListRequest, False),
-        Route(k.world, WorldRequest, False),
-        Route(k.clock, ClockRequest, False),
-        Route(k.pause, PauseRequest, True),
-        Route(k.resume, ResumeRequest, True),
-        Route(k.reset, ResetRequest, True),
-        Route(k.step, StepRequest, True),
-    ]
+    return [Route(getattr(keys, kind), request, kind in ACTIONS) for kind, request in REQUESTS.items()]
 
 
 def reply_format(query: zenoh.Query, payload: bytes) -> Format:
@@ -101,7 +79,7 @@ def declare(
 
     def handler(route: Route) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
-            if route.mutating and str(query.key_expr) != route.key:
+            if route.acts and str(query.key_expr) != route.key:
                 query.drop()  # a wildcard: somebody looking, not asking for this action
                 return
             payload = query.payload.to_bytes() if query.payload is not None else b""
