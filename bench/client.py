@@ -50,7 +50,8 @@ class Fleet:
             dt = time.perf_counter() - t0
             if reply.ok is not None:
                 return True, reply.ok.payload.to_bytes(), dt
-            return False, _error_text(reply.err.payload.to_bytes()), dt
+            err = reply.err
+            return False, _error_text(err.payload.to_bytes() if err is not None else b""), dt
         return False, "no daemon answered", time.perf_counter() - t0
 
     def clock(self, timeout: float = 10.0) -> Any:

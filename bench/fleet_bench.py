@@ -224,6 +224,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="what the subscriber follows in the --rtf 0 runs, each kind run --fast-runs times: every robot's own "
         "topics, or the fleet topics P/odometry and P/scans (default: both)",
     )
+    p.add_argument(
+        "--paced-topics",
+        choices=("robots", "fleet"),
+        default="robots",
+        help="what the subscriber follows in the real-time runs of --sizes (default: %(default)s)",
+    )
     p.add_argument("--spawn-concurrency", type=int, default=16, help="spawn requests in flight (default 16)")
     p.add_argument("--latency-reps", type=int, default=None, help="cmd_vel→odom repetitions (default 20; quick 5)")
     p.add_argument("--extra-spawns", type=int, default=None, help="one-at-a-time spawn/deletes (default 500; quick 10)")
@@ -260,7 +266,7 @@ def main(argv: list[str] | None = None) -> int:
         seed=args.seed,
         simd_args=shlex.split(args.simd_args),
     )
-    plan: list[tuple[int, float, str]] = [(n, 1.0, "robots") for n in args.sizes]
+    plan: list[tuple[int, float, str]] = [(n, 1.0, args.paced_topics) for n in args.sizes]
     if not args.no_fast:
         fast_n = min(args.fast_size, max(args.sizes)) if args.quick else args.fast_size
         repeats = args.fast_runs if args.fast_runs is not None else (1 if args.quick else 3)

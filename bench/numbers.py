@@ -34,8 +34,11 @@ def fmt_rate(x: float | None) -> str:
     return f"{x:.0f}"
 
 
-def fmt_ms(x: float | None) -> str:
-    return "–" if x is None else (f"{x * 1000:.1f}" if x < 0.1 else f"{x * 1000:.0f}")
+def fmt_ms(x: object) -> str:
+    """Seconds as milliseconds; anything that is not a number (a missing value) as a dash."""
+    if not isinstance(x, int | float):
+        return "–"
+    return f"{x * 1000:.1f}" if x < 0.1 else f"{x * 1000:.0f}"
 
 
 def fmt_pct(x: float | None) -> str:

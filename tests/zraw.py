@@ -47,6 +47,15 @@ def get_json(session: zenoh.Session, selector: str, body: Any = None) -> tuple[A
     return (json.loads(ok) if ok is not None else None), (json.loads(err) if err is not None else None)
 
 
+def matching(pub: zenoh.Publisher) -> bool:
+    """Whether some subscriber matches ``pub`` (zenoh's stub types the status as a bool)."""
+    return bool(pub.matching_status.matching)  # type: ignore[attr-defined]
+
+
+def ignore_reply(reply: zenoh.Reply) -> None:
+    """A query's reply handler for a requester that does not wait for the answer."""
+
+
 class Collector:
     """Counts and keeps samples of a key expression (callback subscriber)."""
 

@@ -88,7 +88,7 @@ class DriveColumns(Protocol):
 
 
 def advance(
-    tick: int, cmd_timeout: float, dt: float, robots: DriveColumns, use_native: bool | None = None
+    tick: int, cmd_timeout: float, dt: float, robots: DriveColumns, *, use_native: bool | None = None
 ) -> tuple[F64, F64, F64, F64]:
     """One controller update for every robot: returns (v, w, dx, dy), the body twist and the
     world-frame displacement over ``dt``.
@@ -135,6 +135,7 @@ def report_twist(
     w: F64,
     dx: F64,
     dy: F64,
+    *,
     use_native: bool | None = None,
 ) -> tuple[F64, F64, F64, F64]:
     """The twist odometry reports after the physics moved the robots from (x0, y0, yaw0) to

@@ -29,7 +29,7 @@ from simd.core.worldfile import load_world
 from simd.engine import Engine
 from simd.wire.fleet_codec import encode_fleet_odometry, encode_fleet_scans
 from tests.conftest import Daemon, free_port
-from tests.zraw import client_config, get
+from tests.zraw import client_config, get, matching
 
 # -- the messages ---------------------------------------------------------------------------
 
@@ -328,7 +328,7 @@ def test_robots_own_messages_are_encoded_only_while_somebody_subscribes_and_gets
         assert ok is not None and len(msgspec.msgpack.decode(ok, type=LaserScan).ranges_array()) == 360
         got: list[bytes] = []
         _collect(user, "fleet/a/odom", got, threading.Lock())
-        assert wait_until(lambda: pub._odom_probe.matching_status.matching, 3.0)
+        assert wait_until(lambda: matching(pub._odom_probe), 3.0)
         _warm_up(engine, got)
         engine.tick()
         assert adapter.outbox.flush() and wait_until(lambda: len(got) == 1, 2.0)
