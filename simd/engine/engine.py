@@ -122,7 +122,7 @@ class Engine:
         self._inbox: queue.Queue[_Call | None] = queue.Queue(MAX_PENDING_REQUESTS)
         self._steps: collections.deque[_StepJob] = collections.deque()
         self._pending_commands: dict[str, tuple[float, float]] = {}
-        self._latest_scan: dict[str, ScanRow] = {}
+        self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}  # namespace -> (tick, row) of its scan
         self._rtf = RtfMeter()
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
             SpawnRequest: self._spawn,
@@ -237,7 +237,7 @@ class Engine:
             sim.command_many(self._steps[0].commands)
         snap = sim.step()
         for i, ns in enumerate(snap.scan_namespaces):
-            self._latest_scan[ns] = ScanRow(snap, i)
+            self._latest_scan[ns] = (snap, i)
         for a in self.adapters:
             a.on_tick(snap)
         self._rtf.record(self._wall(), snap.time)
@@ -376,7 +376,7 @@ class Engine:
             states[key] = self.sim.state(robot)
             scan = self._latest_scan.get(robot.namespace)
             if scan is not None:
-                scans[key] = scan
+                scans[key] = ScanRow(*scan)
         return StepResult(self.clock(), job.ran, cancelled, states, scans)
 
     def _event(self, event: Spawned | Deleted | WorldReset) -> None:

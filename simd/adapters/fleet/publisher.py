@@ -56,8 +56,26 @@ def undeclare_all(entities: list[Any]) -> None:
     entities.clear()
 
 
-def _matching(pub: zenoh.Publisher) -> bool:
-    return bool(pub.matching_status.matching)  # type: ignore[attr-defined]  # the stub says bool
+class Interest:
+    """Whether some subscriber matches a publisher, kept current by zenoh's matching listener.
+
+    Asking zenoh every tick costs little CPU but hands the GIL back and forth between the
+    adapter's thread and the simulation's at every call; the listener's callback runs only
+    when somebody arrives or leaves, and a tick just reads a bool.
+    """
+
+    def __init__(self, pub: zenoh.Publisher) -> None:
+        self._listener = pub.declare_matching_listener(self._changed)  # first, so no change is missed
+        self.matching = bool(pub.matching_status.matching)  # type: ignore[attr-defined]  # the stub says bool
+
+    def _changed(self, status: zenoh.MatchingStatus) -> None:
+        self.matching = bool(status.matching)
+
+    def __bool__(self) -> bool:
+        return self.matching
+
+    def undeclare(self) -> None:
+        self._listener.undeclare()
 
 
 class Publisher:
@@ -100,7 +118,19 @@ class Publisher:
         # the same for the robots' own topics (a subscriber of P/tb3_0/odom or P/** matches too)
         self._odom_probe = session.declare_publisher(k.odom("*"))
         self._scan_probe = session.declare_publisher(k.scan("*"))
+        self.odom_wanted = Interest(self._odom_probe)
+        self.scan_wanted = Interest(self._scan_probe)
+        self.odom_json_wanted = Interest(self._odom_json_probe)
+        self.scan_json_wanted = Interest(self._scan_json_probe)
+        self.fleet_odom_wanted = Interest(self.fleet_odom_pub)
+        self.fleet_scan_wanted = Interest(self.fleet_scan_pub)
         self._entities: list[Any] = [
+            self.odom_wanted,
+            self.scan_wanted,
+            self.odom_json_wanted,
+            self.scan_json_wanted,
+            self.fleet_odom_wanted,
+            self.fleet_scan_wanted,
             session.declare_queryable(k.odom("*"), self._answer_odom),
             session.declare_queryable(k.scan("*"), self._answer_scan),
             self.clock_pub,
@@ -160,17 +190,17 @@ class Publisher:
             self._gone.clear()
             for i, ns in enumerate(snap.scan_namespaces):
                 self._latest_scan[ns] = (snap, i)
-        if _matching(self._odom_probe) or _matching(self._odom_json_probe):
+        if self.odom_wanted or self.odom_json_wanted:
             odom = self._odom.encode(
                 snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
             )
             self._put_odom(snap.namespaces, odom)
-        if snap.scan_namespaces and (_matching(self._scan_probe) or _matching(self._scan_json_probe)):
+        if snap.scan_namespaces and (self.scan_wanted or self.scan_json_wanted):
             scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
             spubs = self._scan_pub
             for ns, data in zip(snap.scan_namespaces, scans, strict=True):
                 spubs[ns].put(data)
-            if _matching(self._scan_json_probe):
+            if self.scan_json_wanted:
                 self._mirror("scan", snap.scan_namespaces, scans)
         self._publish_fleet_topics(snap)
 
@@ -182,7 +212,7 @@ class Publisher:
         for put, data in zip(puts, odom, strict=True):
             put(data)
         self.odom_puts += len(odom)
-        if _matching(self._odom_json_probe):
+        if self.odom_json_wanted:
             self._mirror("odom", namespaces, odom)
 
     def _publish_fleet_topics(self, snap: TickSnapshot) -> None:
@@ -192,12 +222,12 @@ class Publisher:
         contract, so a failure here is logged (once) and the simulation goes on.
         """
         try:
-            if snap.namespaces and _matching(self.fleet_odom_pub):
+            if snap.namespaces and self.fleet_odom_wanted:
                 s = snap
                 cols = (s.x, s.y, s.yaw, s.linear_x, s.linear_y, s.angular_z)
                 self.fleet_odom_pub.put(encode_fleet_odometry(s.namespaces, s.time, *cols))
                 self.fleet_messages += 1
-            if snap.scan_namespaces and _matching(self.fleet_scan_pub):
+            if snap.scan_namespaces and self.fleet_scan_wanted:
                 self.fleet_scan_pub.put(encode_fleet_scans(self.spec, snap.scan_namespaces, snap.time, snap.scans))
                 self.fleet_messages += 1
         except Exception:
@@ -211,11 +241,11 @@ class Publisher:
 
     def wants_fleet_odom(self) -> bool:
         """True while somebody subscribes to ``P/odometry``."""
-        return _matching(self.fleet_odom_pub)
+        return bool(self.fleet_odom_wanted)
 
     def wants_fleet_scan(self) -> bool:
         """True while somebody subscribes to ``P/scans``."""
-        return _matching(self.fleet_scan_pub)
+        return bool(self.fleet_scan_wanted)
 
     def publish_clock(self, payload: bytes) -> None:
         self.clock_pub.put(payload)
