@@ -10,6 +10,9 @@ forever, and a missing daemon is reported at once with the endpoint that was tri
         fleet.drive("tb3_0", 0.1, 0.0)
         odom = fleet.wait_odom("tb3_0")
         print(odom.pose.pose.position)
+
+One module over the usual size on purpose: it is one class, the client's whole surface
+(queries, driving, subscriptions, the fleet topics), and reads best in one place.
 """
 
 from __future__ import annotations
