@@ -1,0 +1,220 @@
+"""The engine through its seam, in-process: a recording adapter sees every tick, event and
+reply in the engine's order. Time is the engine's injected clock or lockstep ticks; nothing
+here waits on the wall clock."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Mapping
+
+import pytest
+
+from protocol.control import (
+    ClockRequest,
+    DeleteRequest,
+    ListRequest,
+    PauseRequest,
+    ResetRequest,
+    ResumeRequest,
+    SpawnRequest,
+    StepRequest,
+)
+from protocol.errors import ErrorCode, FleetError
+from protocol.messages import Twist, Vector3
+from simd.core.sim import SimConfig, Simulation
+from simd.core.snapshot import TickSnapshot
+from simd.core.worldfile import load_world
+from simd.engine import Engine
+from simd.engine.engine import RtfMeter
+from simd.engine.ports import Deleted, Event, Result, RobotList, Spawned, StepResult, WorldReset
+
+
+class Recorder:
+    """An adapter that keeps everything the engine tells it, in order."""
+
+    def __init__(self) -> None:
+        self.log: list[tuple[str, object]] = []
+        self.commands: dict[str, tuple[float, float]] = {}
+
+    def on_tick(self, snapshot: TickSnapshot) -> None:
+        self.log.append(("tick", snapshot))
+
+    def on_event(self, event: Event) -> None:
+        self.log.append(("event", event))
+
+    def on_clock(self, clock: object) -> None:
+        self.log.append(("clock", clock))
+
+    def take_commands(self) -> Mapping[str, tuple[float, float]]:
+        cmds, self.commands = self.commands, {}
+        return cmds
+
+    def dropped_commands(self) -> int:
+        return 7
+
+    def close(self) -> None:
+        pass
+
+    def reply(self, name: str) -> object:
+        def reply(result: Result | FleetError) -> None:
+            self.log.append((name, result))
+
+        return reply
+
+    def kinds(self) -> list[str]:
+        return [k for k, _ in self.log if k != "clock"]
+
+
+class FakeWall:
+    """The engine's wall clock, advanced by the test."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def engine(**kwargs: object) -> tuple[Engine, Recorder]:
+    sim = Simulation(load_world("empty"), SimConfig(noise=False))
+    e = Engine(sim, **kwargs)  # type: ignore[arg-type]
+    r = Recorder()
+    e.attach(r)
+    return e, r
+
+
+def test_a_spawn_is_announced_before_its_reply_and_ticks_carry_it_after() -> None:
+    e, r = engine(lockstep=True)
+    e.submit(SpawnRequest(name="a", x=1.0), r.reply("spawned"))  # type: ignore[arg-type]
+    e.serve_pending()
+    assert r.kinds() == ["event", "spawned"]
+    event, reply = r.log[0][1], r.log[-1][1]
+    assert isinstance(event, Spawned) and event.robot.name == "a" and event.time == 0.0
+    assert reply == event.robot  # the reply is the core's value; the adapter makes its message
+    e.tick()
+    snap = r.log[-1][1]
+    assert isinstance(snap, TickSnapshot) and snap.namespaces == ["a"] and snap.tick == 1
+
+
+def test_requests_are_dispatched_by_type_and_errors_reach_the_reply() -> None:
+    e, r = engine(lockstep=True)
+    for name, req in [
+        ("list", ListRequest()),
+        ("clock", ClockRequest()),
+        ("delete", DeleteRequest(name="nobody")),
+        ("resume", ResumeRequest()),
+    ]:
+        e.submit(req, r.reply(name))  # type: ignore[arg-type]
+    e.serve_pending()
+    got = dict(r.log)
+    assert isinstance(got["list"], RobotList) and got["list"].robots == []
+    assert got["clock"].lockstep and got["clock"].dropped_commands == 7  # type: ignore[attr-defined]
+    assert isinstance(got["delete"], FleetError) and got["delete"].code is ErrorCode.NOT_FOUND
+    assert isinstance(got["resume"], FleetError) and got["resume"].code is ErrorCode.NOT_ALLOWED
+
+
+def test_a_full_inbox_refuses_at_once_and_never_replies_later() -> None:
+    e, r = engine(lockstep=True)
+    sent = 0
+    with pytest.raises(FleetError) as busy:
+        while True:
+            e.submit(ClockRequest(), r.reply("clock"))  # type: ignore[arg-type]
+            sent += 1
+    assert busy.value.code is ErrorCode.BUSY and sent > 0
+    assert r.log == []  # the refusal was the exception, not a reply
+    e.serve_pending()
+    replies = [v for k, v in r.log if k == "clock"]
+    assert len(replies) == sent and not any(isinstance(v, FleetError) for v in replies)
+
+
+def test_a_step_runs_in_slices_and_serves_requests_between_them() -> None:
+    wall = FakeWall()
+    e, r = engine(lockstep=True, clock=wall)
+    e.submit(SpawnRequest(name="a"), r.reply("spawned"))  # type: ignore[arg-type]
+    e.serve_pending()
+    ticks_before_list: list[int] = []
+
+    def advance_wall(snapshot: TickSnapshot) -> None:  # every tick takes 5 ms of (fake) wall time
+        wall.now += 0.005
+        if snapshot.tick == 10:  # a request arrives during the step
+            e.submit(ListRequest(), lambda res: ticks_before_list.append(e.sim.tick))
+
+    r.on_tick = advance_wall  # type: ignore[method-assign]
+    e.submit(StepRequest(ticks=40), r.reply("step"))  # type: ignore[arg-type]
+    thread = threading.Thread(target=e.run)
+    thread.start()
+    try:
+        for _ in range(500):
+            if any(k == "step" for k, _ in r.log):
+                break
+            threading.Event().wait(0.01)
+    finally:
+        e.stop()
+        thread.join(5)
+    result = dict(r.log)["step"]
+    assert isinstance(result, StepResult) and result.ticks_run == 40 and not result.cancelled
+    # slices of ~20 ms of 5 ms ticks: the list was served at the end of the slice that held
+    # tick 10, while the step still had ticks to run
+    assert len(ticks_before_list) == 1 and 10 <= ticks_before_list[0] < 16
+
+
+def test_pause_and_reset_cancel_a_step_and_say_how_far_it_got() -> None:
+    e, r = engine(lockstep=True)
+    e.submit(SpawnRequest(name="a"), r.reply("spawned"))  # type: ignore[arg-type]
+    e.serve_pending()
+    e.submit(StepRequest(ticks=1000), r.reply("step"))  # type: ignore[arg-type]
+    e.serve_pending()  # queued: nothing ran yet
+    e.tick()
+    e.tick()
+    e.submit(ResetRequest(), r.reply("reset"))  # type: ignore[arg-type]
+    e.serve_pending()
+    step = dict(r.log)["step"]
+    assert isinstance(step, StepResult) and step.cancelled and step.ticks_run == 0  # ticks outside the job
+    reset_at = [k for k, _ in r.log].index("event", 2)
+    assert isinstance(r.log[reset_at][1], WorldReset)
+    assert [k for k, _ in r.log].index("step") < reset_at  # the step's reply before the reset's event
+    assert e.sim.tick == 0
+
+
+def test_a_steps_commands_hold_and_observations_come_back() -> None:
+    e, r = engine(lockstep=True)
+    e.submit(SpawnRequest(name="a"), r.reply("spawned"))  # type: ignore[arg-type]
+    e.serve_pending()
+    go = {"a": Twist(linear=Vector3(x=0.2))}
+    e.submit(StepRequest(ticks=30, cmd_vel=go, observe=["a"]), r.reply("step"))  # type: ignore[arg-type]
+    e.serve_pending()
+    while not any(k == "step" for k, _ in r.log):
+        e._run_slice()
+    step = dict(r.log)["step"]
+    assert isinstance(step, StepResult) and step.ticks_run == 30
+    assert step.states["a"].linear_velocity == pytest.approx(0.2)  # 1 s: the 0.5 s watchdog did not stop it
+    assert step.scans["a"].ranges.shape == (360,) and step.scans["a"].time <= 1.0
+
+
+def test_the_rtf_meter_measures_from_a_resume_on_an_injected_clock() -> None:
+    m = RtfMeter()
+    assert m.measure() is None
+    m.restart(10.0, 5.0)
+    assert m.measure() is None  # one point: nothing to measure yet
+    m.record(10.5, 5.25)
+    assert m.measure() == pytest.approx(0.5)
+    m.restart(20.0, 5.25)  # a pause and a resume in between must not count
+    m.record(21.0, 7.25)
+    assert m.measure() == pytest.approx(2.0)
+
+
+def test_a_delete_is_announced_and_the_robot_leaves_the_next_tick() -> None:
+    e, r = engine(lockstep=True)
+    for n in ("a", "b"):
+        e.submit(SpawnRequest(name=n, x=0.0 if n == "a" else 2.0), r.reply("spawned"))  # type: ignore[arg-type]
+    e.serve_pending()
+    e.tick()
+    e.submit(DeleteRequest(name="a"), r.reply("deleted"))  # type: ignore[arg-type]
+    e.submit(PauseRequest(), r.reply("paused"))  # type: ignore[arg-type]
+    e.serve_pending()
+    kinds = r.kinds()
+    assert kinds[-3:] == ["event", "deleted", "paused"]
+    assert isinstance(r.log[[k for k, _ in r.log].index("deleted") - 1][1], Deleted)
+    e.tick()
+    last = r.log[-1][1]
+    assert isinstance(last, TickSnapshot) and last.namespaces == ["b"]
