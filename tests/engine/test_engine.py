@@ -14,6 +14,7 @@ from protocol.control import (
     DeleteRequest,
     ListRequest,
     PauseRequest,
+    Request,
     ResetRequest,
     ResumeRequest,
     SpawnRequest,
@@ -26,7 +27,7 @@ from simd.core.snapshot import TickSnapshot
 from simd.core.worldfile import load_world
 from simd.engine import Engine
 from simd.engine.engine import RtfMeter
-from simd.engine.ports import Deleted, Event, Result, RobotList, Spawned, StepResult, WorldReset
+from simd.engine.ports import Deleted, Event, Reply, Result, RobotList, Spawned, StepResult, WorldReset
 
 
 class Recorder:
@@ -55,7 +56,7 @@ class Recorder:
     def close(self) -> None:
         pass
 
-    def reply(self, name: str) -> object:
+    def reply(self, name: str) -> Reply:
         def reply(result: Result | FleetError) -> None:
             self.log.append((name, result))
 
@@ -75,9 +76,9 @@ class FakeWall:
         return self.now
 
 
-def engine(**kwargs: object) -> tuple[Engine, Recorder]:
+def engine(lockstep: bool = True, clock: FakeWall | None = None) -> tuple[Engine, Recorder]:
     sim = Simulation(load_world("empty"), SimConfig(noise=False))
-    e = Engine(sim, **kwargs)  # type: ignore[arg-type]
+    e = Engine(sim, lockstep=lockstep) if clock is None else Engine(sim, lockstep=lockstep, clock=clock)
     r = Recorder()
     e.attach(r)
     return e, r
@@ -85,7 +86,7 @@ def engine(**kwargs: object) -> tuple[Engine, Recorder]:
 
 def test_a_spawn_is_announced_before_its_reply_and_ticks_carry_it_after() -> None:
     e, r = engine(lockstep=True)
-    e.submit(SpawnRequest(name="a", x=1.0), r.reply("spawned"))  # type: ignore[arg-type]
+    e.submit(SpawnRequest(name="a", x=1.0), r.reply("spawned"))
     e.serve_pending()
     assert r.kinds() == ["event", "spawned"]
     event, reply = r.log[0][1], r.log[-1][1]
@@ -98,13 +99,14 @@ def test_a_spawn_is_announced_before_its_reply_and_ticks_carry_it_after() -> Non
 
 def test_requests_are_dispatched_by_type_and_errors_reach_the_reply() -> None:
     e, r = engine(lockstep=True)
-    for name, req in [
+    requests: list[tuple[str, Request]] = [
         ("list", ListRequest()),
         ("clock", ClockRequest()),
         ("delete", DeleteRequest(name="nobody")),
         ("resume", ResumeRequest()),
-    ]:
-        e.submit(req, r.reply(name))  # type: ignore[arg-type]
+    ]
+    for name, req in requests:
+        e.submit(req, r.reply(name))
     e.serve_pending()
     got = dict(r.log)
     assert isinstance(got["list"], RobotList) and got["list"].robots == []
@@ -118,7 +120,7 @@ def test_a_full_inbox_refuses_at_once_and_never_replies_later() -> None:
     sent = 0
     with pytest.raises(FleetError) as busy:
         while True:
-            e.submit(ClockRequest(), r.reply("clock"))  # type: ignore[arg-type]
+            e.submit(ClockRequest(), r.reply("clock"))
             sent += 1
     assert busy.value.code is ErrorCode.BUSY and sent > 0
     assert r.log == []  # the refusal was the exception, not a reply
@@ -130,7 +132,7 @@ def test_a_full_inbox_refuses_at_once_and_never_replies_later() -> None:
 def test_a_step_runs_in_slices_and_serves_requests_between_them() -> None:
     wall = FakeWall()
     e, r = engine(lockstep=True, clock=wall)
-    e.submit(SpawnRequest(name="a"), r.reply("spawned"))  # type: ignore[arg-type]
+    e.submit(SpawnRequest(name="a"), r.reply("spawned"))
     e.serve_pending()
     ticks_before_list: list[int] = []
 
@@ -140,7 +142,7 @@ def test_a_step_runs_in_slices_and_serves_requests_between_them() -> None:
             e.submit(ListRequest(), lambda res: ticks_before_list.append(e.sim.tick))
 
     r.on_tick = advance_wall  # type: ignore[method-assign]
-    e.submit(StepRequest(ticks=40), r.reply("step"))  # type: ignore[arg-type]
+    e.submit(StepRequest(ticks=40), r.reply("step"))
     thread = threading.Thread(target=e.run)
     thread.start()
     try:
@@ -160,13 +162,13 @@ def test_a_step_runs_in_slices_and_serves_requests_between_them() -> None:
 
 def test_pause_and_reset_cancel_a_step_and_say_how_far_it_got() -> None:
     e, r = engine(lockstep=True)
-    e.submit(SpawnRequest(name="a"), r.reply("spawned"))  # type: ignore[arg-type]
+    e.submit(SpawnRequest(name="a"), r.reply("spawned"))
     e.serve_pending()
-    e.submit(StepRequest(ticks=1000), r.reply("step"))  # type: ignore[arg-type]
+    e.submit(StepRequest(ticks=1000), r.reply("step"))
     e.serve_pending()  # queued: nothing ran yet
     e.tick()
     e.tick()
-    e.submit(ResetRequest(), r.reply("reset"))  # type: ignore[arg-type]
+    e.submit(ResetRequest(), r.reply("reset"))
     e.serve_pending()
     step = dict(r.log)["step"]
     assert isinstance(step, StepResult) and step.cancelled and step.ticks_run == 0  # ticks outside the job
@@ -178,10 +180,10 @@ def test_pause_and_reset_cancel_a_step_and_say_how_far_it_got() -> None:
 
 def test_a_steps_commands_hold_and_observations_come_back() -> None:
     e, r = engine(lockstep=True)
-    e.submit(SpawnRequest(name="a"), r.reply("spawned"))  # type: ignore[arg-type]
+    e.submit(SpawnRequest(name="a"), r.reply("spawned"))
     e.serve_pending()
     go = {"a": Twist(linear=Vector3(x=0.2))}
-    e.submit(StepRequest(ticks=30, cmd_vel=go, observe=["a"]), r.reply("step"))  # type: ignore[arg-type]
+    e.submit(StepRequest(ticks=30, cmd_vel=go, observe=["a"]), r.reply("step"))
     e.serve_pending()
     while not any(k == "step" for k, _ in r.log):
         e._run_slice()
@@ -206,11 +208,11 @@ def test_the_rtf_meter_measures_from_a_resume_on_an_injected_clock() -> None:
 def test_a_delete_is_announced_and_the_robot_leaves_the_next_tick() -> None:
     e, r = engine(lockstep=True)
     for n in ("a", "b"):
-        e.submit(SpawnRequest(name=n, x=0.0 if n == "a" else 2.0), r.reply("spawned"))  # type: ignore[arg-type]
+        e.submit(SpawnRequest(name=n, x=0.0 if n == "a" else 2.0), r.reply("spawned"))
     e.serve_pending()
     e.tick()
-    e.submit(DeleteRequest(name="a"), r.reply("deleted"))  # type: ignore[arg-type]
-    e.submit(PauseRequest(), r.reply("paused"))  # type: ignore[arg-type]
+    e.submit(DeleteRequest(name="a"), r.reply("deleted"))
+    e.submit(PauseRequest(), r.reply("paused"))
     e.serve_pending()
     kinds = r.kinds()
     assert kinds[-3:] == ["event", "deleted", "paused"]
