@@ -1,7 +1,7 @@
-"""Micro-benchmark of the lidar kernels of simd.lidar (not collected by pytest).
+"""Micro-benchmark of the lidar kernels of simd.core.lidar (not collected by pytest).
 
 Times one tick's batch of sensors (167 = 1 000 robots x 5 Hz / 30 Hz) for the numpy kernel
-(``cast_numpy``, the reference), the compiled kernel (``cast_native``, simd/core/_raycast.c, when it is
+(``cast_numpy``, the reference), the compiled kernel (``cast_native``, simd/core/lidar/_raycast.c, when it is
 built) and a naive numpy reference (every beam x every primitive within range), all in the same
 process, and checks that they agree: native and numpy bit for bit, numpy and naive to 1e-4 m.
 Native and numpy calls are interleaved batch by batch, so that a slower spell of a shared
@@ -218,6 +218,9 @@ def main() -> None:
     ap.add_argument("--naive-repeats", type=int, default=3)
     ap.add_argument("--profile", action="store_true", help="cProfile the numpy kernel")
     args = ap.parse_args()
+    for flag in ("robots", "sensors", "repeats", "naive_repeats"):
+        if getattr(args, flag) < 1:
+            ap.error(f"--{flag.replace('_', '-')} must be at least 1")
 
     spec = LidarSpec()
     t0 = time.perf_counter()

@@ -203,7 +203,7 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "simd._drive", "Per-tick diff-drive arithmetic, compiled.", -1, methods,
+    PyModuleDef_HEAD_INIT, "simd.core._drive", "Per-tick diff-drive arithmetic, compiled.", -1, methods,
     NULL, NULL, NULL, NULL,
 };
 

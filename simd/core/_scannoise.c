@@ -525,7 +525,7 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "simd._scannoise", "Lidar masking and Gaussian noise, compiled (see simd/core/_scannoise.c).",
+    PyModuleDef_HEAD_INIT, "simd.core._scannoise", "Lidar masking and Gaussian noise, compiled (see simd/core/_scannoise.c).",
     -1, methods, NULL, NULL, NULL, NULL,
 };
 

@@ -35,7 +35,7 @@ class Kernel:
 
 #: label -> the compiled module (built from ``source``, see pyproject.toml's ext-modules)
 KERNELS: dict[str, Kernel] = {
-    "raycast": Kernel("simd.core._raycast", "simd/core/_raycast.c", override="FLEETSIM_LIDAR"),
+    "raycast": Kernel("simd.core.lidar._raycast", "simd/core/lidar/_raycast.c", override="FLEETSIM_LIDAR"),
     "scannoise": Kernel("simd.core._scannoise", "simd/core/_scannoise.c"),
     "drive": Kernel("simd.core._drive", "simd/core/_drive.c"),
     "odompack": Kernel("simd.wire._odompack", "simd/wire/_odompack.c"),

@@ -160,7 +160,7 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {
-    PyModuleDef_HEAD_INIT, "simd._odompack", "Odometry byte templates patched in one pass.", -1, methods,
+    PyModuleDef_HEAD_INIT, "simd.wire._odompack", "Odometry byte templates patched in one pass.", -1, methods,
     NULL, NULL, NULL, NULL,
 };
 

@@ -1,6 +1,6 @@
 """Oracle tests of the lidar kernels against a slow, independent per-beam reference.
 
-Every test runs the numpy kernel (``cast_numpy``) and, when simd.core._raycast is built, the compiled
+Every test runs the numpy kernel (``cast_numpy``) and, when simd.core.lidar._raycast is built, the compiled
 one (``cast_native``); the oracle's scans are cached, so the second kernel costs little.
 
 The reference casts every beam on its own: shapely intersects the beam, as the segment from
@@ -171,7 +171,8 @@ def run_cast(
         dyn_owner,
     )
     assert res.shape == (1, SPEC.samples) and res.dtype == np.float32
-    return res[0]
+    row: npt.NDArray[np.float32] = res[0]
+    return row
 
 
 def perturbed(segments: F64, circles: F64, spec: LidarSpec, delta: float) -> tuple[F64, F64, LidarSpec]:

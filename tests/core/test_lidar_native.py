@@ -1,17 +1,18 @@
-"""The compiled lidar kernel (simd/core/_raycast.c) against the numpy kernel, its reference.
+"""The compiled lidar kernel (simd/core/lidar/_raycast.c) against the numpy kernel, its reference.
 
 Both must return the same bits: every hit distance is the same float64 expression of the same
-inputs (see the docstrings of simd/core/lidar.py and simd/core/_raycast.c).  The cases where the kernels
+inputs (see the docstrings of simd/core/lidar/ and simd/core/lidar/_raycast.c).  The cases where the kernels
 may differ are degenerate and documented there (a segment or a circle boundary within ~1e-4 m
 of a sensor while range_min is ~0; a ray exactly through a segment end); the random scenes keep
 clear of them.
 
-Also: the argument checks of simd.core._raycast.cast (wrong types, shapes, lengths, inconsistent
+Also: the argument checks of simd.core.lidar._raycast.cast (wrong types, shapes, lengths, inconsistent
 grids must raise, never crash), the choice of kernel (FLEETSIM_LIDAR) and thread safety.
 """
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import subprocess
@@ -384,17 +385,15 @@ def test_environment_chooses_the_kernel() -> None:
     assert bad.returncode != 0 and "FLEETSIM_LIDAR='fast'" in bad.stderr, bad
 
 
-# --- argument checks of simd.core._raycast.cast ----------------------------------------------------
+# --- argument checks of simd.core.lidar._raycast.cast ----------------------------------------------------
 
 
 def native_module() -> ModuleType:
-    import simd.core._raycast as raycast  # type: ignore[import-not-found,unused-ignore]
-
-    return raycast
+    return importlib.import_module("simd.core.lidar._raycast")
 
 
 def valid_args() -> list[Any]:
-    """A valid positional argument list of simd.core._raycast.cast (3 sensors, 2 robots)."""
+    """A valid positional argument list of simd.core.lidar._raycast.cast (3 sensors, 2 robots)."""
     scene = StaticScene(box(-2, -2, 2, 2), np.array([[0.5, 0.5, 0.2]]))
     dyn, ids = fleet(np.array([[1.0, -1.0, 0.3], [-1.0, 1.0, 2.0]]), np.arange(2))
     origins = np.array([[0.0, 0.0], [1.0, 1.0], [-1.0, -1.0]])
@@ -410,7 +409,7 @@ def valid_args() -> list[Any]:
         owners,
         dyn,
         ids,
-        *lidar._native_spec_args(SPEC),
+        *lidar.native_spec_args(SPEC),
         out,
     ]
 

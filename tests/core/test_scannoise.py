@@ -31,7 +31,7 @@ else:
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
-RMIN, RMAX = 0.12, 3.5  # the TurtleBot3 LDS-01 of simd.lidar.LidarSpec
+RMIN, RMAX = 0.12, 3.5  # the TurtleBot3 LDS-01 of simd.core.lidar.LidarSpec
 BELOW_MAX = float(np.nextafter(np.float32(RMAX), np.float32(0)))
 ABOVE_MAX = float(np.nextafter(np.float32(RMAX), np.float32(np.inf)))
 SPECIALS = [np.inf, -np.inf, np.nan, RMAX, BELOW_MAX, ABOVE_MAX, RMIN, 0.05, 0.0, -0.0, -1.0, 1e30, -1e30, 3.3, 7.0]

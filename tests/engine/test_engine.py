@@ -9,17 +9,7 @@ from collections.abc import Mapping
 
 import pytest
 
-from protocol.control import (
-    ClockRequest,
-    DeleteRequest,
-    ListRequest,
-    PauseRequest,
-    Request,
-    ResetRequest,
-    ResumeRequest,
-    SpawnRequest,
-    StepRequest,
-)
+from protocol import control
 from protocol.errors import ErrorCode, FleetError
 from protocol.messages import Twist, Vector3
 from simd.core.sim import SimConfig, Simulation
@@ -86,7 +76,7 @@ def engine(lockstep: bool = True, clock: FakeWall | None = None) -> tuple[Engine
 
 def test_a_spawn_is_announced_before_its_reply_and_ticks_carry_it_after() -> None:
     e, r = engine(lockstep=True)
-    e.submit(SpawnRequest(name="a", x=1.0), r.reply("spawned"))
+    e.submit(control.SpawnRequest(name="a", x=1.0), r.reply("spawned"))
     e.serve_pending()
     assert r.kinds() == ["event", "spawned"]
     event, reply = r.log[0][1], r.log[-1][1]
@@ -99,11 +89,11 @@ def test_a_spawn_is_announced_before_its_reply_and_ticks_carry_it_after() -> Non
 
 def test_requests_are_dispatched_by_type_and_errors_reach_the_reply() -> None:
     e, r = engine(lockstep=True)
-    requests: list[tuple[str, Request]] = [
-        ("list", ListRequest()),
-        ("clock", ClockRequest()),
-        ("delete", DeleteRequest(name="nobody")),
-        ("resume", ResumeRequest()),
+    requests: list[tuple[str, control.Request]] = [
+        ("list", control.ListRequest()),
+        ("clock", control.ClockRequest()),
+        ("delete", control.DeleteRequest(name="nobody")),
+        ("resume", control.ResumeRequest()),
     ]
     for name, req in requests:
         e.submit(req, r.reply(name))
@@ -120,7 +110,7 @@ def test_a_full_inbox_refuses_at_once_and_never_replies_later() -> None:
     sent = 0
     with pytest.raises(FleetError) as busy:
         while True:
-            e.submit(ClockRequest(), r.reply("clock"))
+            e.submit(control.ClockRequest(), r.reply("clock"))
             sent += 1
     assert busy.value.code is ErrorCode.BUSY and sent > 0
     assert r.log == []  # the refusal was the exception, not a reply
@@ -132,17 +122,17 @@ def test_a_full_inbox_refuses_at_once_and_never_replies_later() -> None:
 def test_a_step_runs_in_slices_and_serves_requests_between_them() -> None:
     wall = FakeWall()
     e, r = engine(lockstep=True, clock=wall)
-    e.submit(SpawnRequest(name="a"), r.reply("spawned"))
+    e.submit(control.SpawnRequest(name="a"), r.reply("spawned"))
     e.serve_pending()
     ticks_before_list: list[int] = []
 
     def advance_wall(snapshot: TickSnapshot) -> None:  # every tick takes 5 ms of (fake) wall time
         wall.now += 0.005
         if snapshot.tick == 10:  # a request arrives during the step
-            e.submit(ListRequest(), lambda res: ticks_before_list.append(e.sim.tick))
+            e.submit(control.ListRequest(), lambda res: ticks_before_list.append(e.sim.tick))
 
     r.on_tick = advance_wall  # type: ignore[method-assign]
-    e.submit(StepRequest(ticks=40), r.reply("step"))
+    e.submit(control.StepRequest(ticks=40), r.reply("step"))
     thread = threading.Thread(target=e.run)
     thread.start()
     try:
@@ -162,13 +152,13 @@ def test_a_step_runs_in_slices_and_serves_requests_between_them() -> None:
 
 def test_pause_and_reset_cancel_a_step_and_say_how_far_it_got() -> None:
     e, r = engine(lockstep=True)
-    e.submit(SpawnRequest(name="a"), r.reply("spawned"))
+    e.submit(control.SpawnRequest(name="a"), r.reply("spawned"))
     e.serve_pending()
-    e.submit(StepRequest(ticks=1000), r.reply("step"))
+    e.submit(control.StepRequest(ticks=1000), r.reply("step"))
     e.serve_pending()  # queued: nothing ran yet
     e.tick()
     e.tick()
-    e.submit(ResetRequest(), r.reply("reset"))
+    e.submit(control.ResetRequest(), r.reply("reset"))
     e.serve_pending()
     step = dict(r.log)["step"]
     assert isinstance(step, StepResult) and step.cancelled and step.ticks_run == 0  # ticks outside the job
@@ -180,10 +170,10 @@ def test_pause_and_reset_cancel_a_step_and_say_how_far_it_got() -> None:
 
 def test_a_steps_commands_hold_and_observations_come_back() -> None:
     e, r = engine(lockstep=True)
-    e.submit(SpawnRequest(name="a"), r.reply("spawned"))
+    e.submit(control.SpawnRequest(name="a"), r.reply("spawned"))
     e.serve_pending()
     go = {"a": Twist(linear=Vector3(x=0.2))}
-    e.submit(StepRequest(ticks=30, cmd_vel=go, observe=["a"]), r.reply("step"))
+    e.submit(control.StepRequest(ticks=30, cmd_vel=go, observe=["a"]), r.reply("step"))
     e.serve_pending()
     while not any(k == "step" for k, _ in r.log):
         e._run_slice()
@@ -208,11 +198,11 @@ def test_the_rtf_meter_measures_from_a_resume_on_an_injected_clock() -> None:
 def test_a_delete_is_announced_and_the_robot_leaves_the_next_tick() -> None:
     e, r = engine(lockstep=True)
     for n in ("a", "b"):
-        e.submit(SpawnRequest(name=n, x=0.0 if n == "a" else 2.0), r.reply("spawned"))
+        e.submit(control.SpawnRequest(name=n, x=0.0 if n == "a" else 2.0), r.reply("spawned"))
     e.serve_pending()
     e.tick()
-    e.submit(DeleteRequest(name="a"), r.reply("deleted"))
-    e.submit(PauseRequest(), r.reply("paused"))
+    e.submit(control.DeleteRequest(name="a"), r.reply("deleted"))
+    e.submit(control.PauseRequest(), r.reply("paused"))
     e.serve_pending()
     kinds = r.kinds()
     assert kinds[-3:] == ["event", "deleted", "paused"]

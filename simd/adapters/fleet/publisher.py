@@ -6,9 +6,10 @@ declared key is routed once, a key string at every put) and a liveliness token.
 
 Nothing is encoded for nobody: a wildcard publisher on ``P/*/odom`` (and one on ``P/*/scan``)
 learns from zenoh (a matching listener, see :class:`Interest`) whether anyone subscribes to any
-robot's odometry (scans); when nobody does, the per-robot messages are neither encoded nor put, which is most of a tick's sending
-work when clients follow the fleet topics instead. ``get P/<ns>/odom`` and ``get P/<ns>/scan``
-are answered from the latest snapshot, encoded on request: the same bytes the topic carries.
+robot's odometry (scans); when nobody does, the per-robot messages are neither encoded nor put,
+which is most of a tick's sending work when clients follow the fleet topics instead.
+``get P/<ns>/odom`` and ``get P/<ns>/scan`` are answered from the latest snapshot, encoded on
+request: the same bytes the topic carries.
 Everything but those answers runs on one thread at a time (the adapter's), in the engine's order.
 """
 

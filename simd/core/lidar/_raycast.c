@@ -1,8 +1,8 @@
 /*
- * simd._raycast: compiled lidar ray-casting kernel for simd.lidar.
+ * simd._raycast: compiled lidar ray-casting kernel for simd.core.lidar.
  *
  * The contract, the data layout and the reasons for the algorithm are in the docstring of
- * simd/core/lidar.py, whose numpy kernel (cast_numpy) is the reference.  This file computes the same
+ * simd/core/lidar/, whose numpy kernel (cast_numpy) is the reference.  This file computes the same
  * thing sensor by sensor, against the StaticScene's grid (the same CSR candidate lists) and a
  * uniform grid of robot outline groups built here on every call.
  *
@@ -46,7 +46,7 @@
 #include <string.h>
 
 #if defined(__FAST_MATH__)
-#error "simd/core/_raycast.c must not be compiled with -ffast-math (results must match the numpy kernel)"
+#error "simd/core/lidar/_raycast.c must not be compiled with -ffast-math (results must match the numpy kernel)"
 #endif
 #if defined(__clang__)
 #pragma STDC FP_CONTRACT OFF
@@ -1089,7 +1089,7 @@ PyDoc_STRVAR(cast_doc,
              "C-contiguous float64 (pieces (P, 4), circles (C, 3), origins (N, 2), h0 / cos_h0 / sin_h0 (N,)\n"
              "beam-0 bearings and their cos/sin, dyn_segments (M, 4), table (2, 2 * samples) beam\n"
              "directions) or int64 (the CSR bounds (grid_nx * grid_ny + 1,) and items, owners (N,),\n"
-             "dyn_owner (M,)).  See simd/core/lidar.py, whose StaticScene builds the static arrays and whose\n"
+             "dyn_owner (M,)).  See simd/core/lidar/, whose StaticScene builds the static arrays and whose\n"
              "constants give the tolerances.  The GIL is released while casting.");
 
 static PyObject *
@@ -1303,8 +1303,8 @@ static PyMethodDef raycast_methods[] = {
 
 static struct PyModuleDef raycast_module = {
     PyModuleDef_HEAD_INIT,
-    "simd._raycast",
-    "Compiled lidar ray casting for simd.lidar (see simd/core/_raycast.c and simd/core/lidar.py).",
+    "simd.core.lidar._raycast",
+    "Compiled lidar ray casting for simd.core.lidar (see simd/core/lidar/_raycast.c and simd/core/lidar/).",
     -1,
     raycast_methods,
     NULL,
