@@ -8,9 +8,9 @@ toward the target by at most 0.005 m/s and 0.05 rad/s per loop iteration, the lo
 a robot that is being driven. Targets clamp to the limits in the robot's record (no
 ``TURTLEBOT3_MODEL`` needed). ``q``, Esc or Ctrl-C quit, after one zero command.
 
-The logic lives in :class:`TeleopState` (pure, no I/O); :class:`Teleop` connects it to a
-daemon and to a small prompt_toolkit application that also shows odometry, the nearest
-obstacle of the latest scan and whether the robot and the daemon are there.
+The pure part (keys, ramps, the screen's text) is clients/teleop_model.py; :class:`Teleop`
+connects it to a daemon and to a small prompt_toolkit application that also shows odometry,
+the nearest obstacle of the latest scan and whether the robot and the daemon are there.
 """
 
 from __future__ import annotations
@@ -23,9 +23,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 
-import numpy as np
 from prompt_toolkit.application import Application
 from prompt_toolkit.formatted_text import StyleAndTextTuples
 from prompt_toolkit.input import Input
@@ -36,128 +34,48 @@ from prompt_toolkit.output import Output
 from prompt_toolkit.styles import Style
 
 from clients.api import FleetClient
+from clients.teleop_model import (
+    ANG_RAMP,
+    ANG_VEL_STEP,
+    LIN_RAMP,
+    LIN_VEL_STEP,
+    ODOM_STALE_S,
+    RATE_HZ,
+    Seen,
+    TeleopState,
+    describe_bearing,
+    nearest_obstacle,
+    screen,
+    status,
+)
 from protocol.control import RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import LaserScan, Odometry
 from protocol.zenoh_config import ZenohOptions, add_zenoh_args, options_from_args
 
-#: turtlebot3_teleop's steps and smoothing (half a step per loop iteration).
-LIN_VEL_STEP = 0.01
-ANG_VEL_STEP = 0.1
-LIN_RAMP = LIN_VEL_STEP / 2
-ANG_RAMP = ANG_VEL_STEP / 2
-RATE_HZ = 10.0
+__all__ = [  # the model's names stay importable from here, as before the split
+    "ANG_RAMP",
+    "ANG_VEL_STEP",
+    "LIN_RAMP",
+    "LIN_VEL_STEP",
+    "ODOM_STALE_S",
+    "RATE_HZ",
+    "Seen",
+    "Teleop",
+    "TeleopState",
+    "describe_bearing",
+    "main",
+    "nearest_obstacle",
+]
 
 #: A status poll of the daemon (clock query) every this many seconds.
 POLL_PERIOD = 0.5
-#: Odometry older than this is shown as stale (the daemon publishes at 30 Hz while running).
-ODOM_STALE_S = 1.0
 
 EXIT_OK = 0
 EXIT_UNKNOWN_ROBOT = 1
 EXIT_USAGE = 2
 EXIT_NO_DAEMON = 3
-
-
-# --- the pure logic ---------------------------------------------------------------------------
-
-
-def _clamp(value: float, limit: float) -> float:
-    return max(-limit, min(limit, value))
-
-
-def _toward(output: float, target: float, slop: float) -> float:
-    """turtlebot3_teleop's ``make_simple_profile``: move by at most ``slop``."""
-    if target > output:
-        return min(target, output + slop)
-    if target < output:
-        return max(target, output - slop)
-    return target
-
-
-class TeleopState:
-    """Targets, ramped output and clamps; one :meth:`tick` per loop iteration.
-
-    Values are rounded to 1e-9 after each change, so 22 presses of ``w`` are exactly 0.22
-    rather than 0.22000000000000006.
-    """
-
-    def __init__(self, max_linear: float, max_angular: float) -> None:
-        self.max_linear = max_linear
-        self.max_angular = max_angular
-        self.target_linear = 0.0
-        self.target_angular = 0.0
-        self.linear = 0.0
-        self.angular = 0.0
-
-    def set_limits(self, max_linear: float, max_angular: float) -> None:
-        self.max_linear, self.max_angular = max_linear, max_angular
-        self.target_linear = _clamp(self.target_linear, max_linear)
-        self.target_angular = _clamp(self.target_angular, max_angular)
-        self.linear = _clamp(self.linear, max_linear)
-        self.angular = _clamp(self.angular, max_angular)
-
-    def change_linear(self, delta: float) -> None:
-        self.target_linear = round(_clamp(self.target_linear + delta, self.max_linear), 9)
-
-    def change_angular(self, delta: float) -> None:
-        self.target_angular = round(_clamp(self.target_angular + delta, self.max_angular), 9)
-
-    def stop(self) -> None:
-        """Force stop: target and output to zero at once, no ramp."""
-        self.target_linear = self.target_angular = 0.0
-        self.linear = self.angular = 0.0
-
-    def press(self, key: str) -> bool:
-        """Apply a key (``w x a d s`` or space, or ``up down left right``); False if ignored."""
-        match key:
-            case "w" | "up":
-                self.change_linear(+LIN_VEL_STEP)
-            case "x" | "down":
-                self.change_linear(-LIN_VEL_STEP)
-            case "a" | "left":
-                self.change_angular(+ANG_VEL_STEP)
-            case "d" | "right":
-                self.change_angular(-ANG_VEL_STEP)
-            case "s" | " " | "space":
-                self.stop()
-            case _:
-                return False
-        return True
-
-    def tick(self) -> tuple[float, float]:
-        """Ramp the output one step toward the target; returns the command to publish."""
-        self.linear = round(_toward(self.linear, self.target_linear, LIN_RAMP), 9)
-        self.angular = round(_toward(self.angular, self.target_angular, ANG_RAMP), 9)
-        return self.linear, self.angular
-
-
-def nearest_obstacle(scan: LaserScan) -> tuple[float, float] | None:
-    """(distance m, bearing rad) of the closest return, bearing 0 ahead and positive left.
-
-    The distance is measured from the lidar (``base_scan``), as the scan is. None when
-    nothing is within range.
-    """
-    ranges = scan.ranges_array()
-    valid = np.isfinite(ranges) & (ranges >= scan.range_min)
-    if not valid.any():
-        return None
-    i = int(np.argmin(np.where(valid, ranges, np.inf)))
-    bearing = scan.angle_min + i * scan.angle_increment
-    bearing = (bearing + math.pi) % (2 * math.pi) - math.pi
-    return float(ranges[i]), bearing
-
-
-def describe_bearing(bearing: float) -> str:
-    deg = math.degrees(bearing)
-    if abs(deg) <= 10:
-        side = "ahead"
-    elif abs(deg) >= 170:
-        side = "behind"
-    else:
-        side = "left" if deg > 0 else "right"
-    return f"{deg:+.0f}° ({side})"
 
 
 # --- the live session -------------------------------------------------------------------------
@@ -168,21 +86,6 @@ class StartupError(Exception):
         super().__init__(message)
         self.code = code
         self.message = message
-
-
-@dataclass
-class Seen:
-    """What the zenoh callbacks and the monitor last saw (written by them, read by the UI)."""
-
-    odom: Odometry | None = None
-    odom_at: float = 0.0
-    nearest: tuple[float, float] | None = None
-    scan_at: float = 0.0
-    robot_alive: bool = True
-    daemon_up: bool = True
-    paused: bool = False
-    #: A fresh record after the robot came back (new limits); the loop applies it.
-    new_record: RobotRecord | None = None
 
 
 class Teleop:
@@ -341,55 +244,12 @@ class Teleop:
 
     def status(self) -> tuple[str, str]:
         """(style class, text) of the connection line."""
-        ns = self.namespace
-        if not self.seen.daemon_up:
-            return "bad", f"no daemon at {self.client.options.endpoints()} - waiting for it"
-        if not self.seen.robot_alive:
-            return "warn", f"robot gone - waiting for {ns} to be spawned again"
-        if self.seen.paused:
-            return "warn", "robot alive, simulation paused"
-        return "good", "robot alive"
+        return status(self.seen, self.client.options.endpoints(), self.namespace)
 
     def render(self) -> StyleAndTextTuples:
-        st, seen, rec = self.state, self.seen, self.record
-        style, text = self.status()
         topic = self.client.keys.cmd_vel(self.namespace)
-
-        def vel(v: float, w: float) -> str:
-            return f"{v:+.3f} m/s   {w:+.3f} rad/s"
-
-        out: StyleAndTextTuples = [
-            ("class:title", f"fleet-teleop {rec.name} ({rec.model}) -> {topic}  "),
-            (f"class:{style}", f"[{text}]\n"),
-            ("class:dim", "          linear       angular\n"),
-            ("", f"target    {vel(st.target_linear, st.target_angular)}\n"),
-            ("", f"output    {vel(st.linear, st.angular)}   cmd_vel at {RATE_HZ:g} Hz\n"),
-        ]
-        odom = seen.odom
-        if odom is None:
-            out.append(("class:dim", "actual    (no odometry yet)\npose      (no odometry yet)\n"))
-        else:
-            tw, p = odom.twist.twist, odom.pose.pose
-            yaw = p.orientation.yaw()
-            stale = "   (stale)" if time.monotonic() - seen.odom_at > ODOM_STALE_S else ""
-            out.append(("", f"actual    {vel(tw.linear.x, tw.angular.z)}   odom{stale}\n"))
-            out.append(
-                ("", f"pose      x {p.position.x:+.3f} m   y {p.position.y:+.3f} m   "
-                     f"yaw {yaw:+.3f} rad ({math.degrees(yaw):+.1f}°)\n")
-            )  # fmt: skip
-        if seen.scan_at == 0.0:
-            out.append(("class:dim", "nearest   (no scan yet)\n"))
-        elif seen.nearest is None:
-            out.append(("", "nearest   nothing within range\n"))
-        else:
-            dist, bearing = seen.nearest
-            out.append(("", f"nearest   {dist:.2f} m at {describe_bearing(bearing)}\n"))
-        out.append(
-            ("class:dim", f"w/x ±{LIN_VEL_STEP:g} m/s  a/d ±{ANG_VEL_STEP:g} rad/s  (or arrows)  "
-                          "s/space stop  q/Esc/Ctrl-C quit\n"
-                          f"limits ±{st.max_linear:g} m/s  ±{st.max_angular:g} rad/s")
-        )  # fmt: skip
-        return out
+        endpoints = self.client.options.endpoints()
+        return list(screen(self.record, self.state, self.seen, topic, endpoints, time.monotonic()))
 
     # -- the application -------------------------------------------------------------------------
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import itertools
-import math
 import os
 import shlex
 import shutil
@@ -17,7 +16,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import msgspec
-import numpy as np
 import pytest
 import zenoh
 from prompt_toolkit.input import create_pipe_input
@@ -26,117 +24,17 @@ from prompt_toolkit.output import DummyOutput
 from clients import FleetClient, wait_until
 from clients import teleop as teleop_mod
 from clients.teleop import (
-    ANG_RAMP,
     LIN_RAMP,
     Teleop,
-    TeleopState,
-    describe_bearing,
-    nearest_obstacle,
 )
-from protocol import LaserScan, Twist
+from protocol import Twist
 from protocol.zenoh_config import ZenohOptions
 from tests.conftest import ROOT, Daemon, free_port, simd_command
 
 BURGER = (0.22, 2.84)
 WAFFLE = (0.26, 1.82)
 
-# --- (a) the pure logic -------------------------------------------------------------------------
-
-
-def press(state: TeleopState, keys: str | list[str]) -> None:
-    for k in keys:
-        state.press(k)
-
-
-def test_keys_change_targets_by_teleop_keyboard_steps() -> None:
-    s = TeleopState(*BURGER)
-    press(s, "www")
-    assert (s.target_linear, s.target_angular) == (0.03, 0.0)
-    press(s, "x")
-    assert s.target_linear == 0.02
-    press(s, "aa")
-    assert s.target_angular == 0.2  # a turns left (counter-clockwise): positive
-    press(s, "ddd")
-    assert s.target_angular == -0.1
-    press(s, ["up", "up", "left", "down", "right", "right"])
-    assert (s.target_linear, s.target_angular) == (0.03, -0.2)
-    assert not s.press("k") and not s.press("q")  # ignored, nothing changes
-    assert (s.target_linear, s.target_angular) == (0.03, -0.2)
-    assert (s.linear, s.angular) == (0.0, 0.0)  # keys move targets only; the loop ramps
-
-
-@pytest.mark.parametrize(("limits", "w_presses", "a_presses"), [(BURGER, 22, 29), (WAFFLE, 26, 19)])
-def test_targets_clamp_to_the_models_limits(limits: tuple[float, float], w_presses: int, a_presses: int) -> None:
-    max_v, max_w = limits
-    s = TeleopState(max_v, max_w)
-    press(s, "w" * (w_presses - 1))
-    assert s.target_linear < max_v
-    press(s, "w")
-    assert s.target_linear == max_v  # exactly, no 0.22000000000000006
-    press(s, "w" * 10)
-    assert s.target_linear == max_v
-    press(s, "x" * 100)
-    assert s.target_linear == -max_v
-    press(s, "a" * (a_presses - 1))
-    assert s.target_angular < max_w
-    press(s, "a" * 30)
-    assert s.target_angular == max_w
-    press(s, "d" * 100)
-    assert s.target_angular == -max_w
-    s.set_limits(0.1, 1.0)  # a robot that came back as another model
-    assert (s.target_linear, s.target_angular) == (-0.1, -1.0)
-
-
-def test_output_ramps_by_half_a_step_per_loop() -> None:
-    s = TeleopState(*BURGER)
-    press(s, "wwwww" + "aaa")  # targets 0.05 m/s, 0.3 rad/s
-    outputs = [s.tick() for _ in range(12)]
-    assert outputs[0] == (LIN_RAMP, ANG_RAMP) == (0.005, 0.05)
-    assert outputs[1] == (0.01, 0.1)
-    assert outputs[5] == (0.03, 0.3)  # angular reached its target after 6 loops
-    assert outputs[9] == outputs[11] == (0.05, 0.3)  # linear after 10, then holds
-    press(s, "x" * 10)  # target -0.05: back down through zero, 0.005 per loop
-    downs = [s.tick()[0] for _ in range(20)]
-    assert downs[0] == 0.045 and downs[9] == 0.0 and downs[19] == -0.05
-    assert all(abs(b - a) <= LIN_RAMP + 1e-12 for a, b in zip([0.05, *downs], downs, strict=False))
-
-
-@pytest.mark.parametrize("key", ["s", " ", "space"])
-def test_stop_zeroes_target_and_output_at_once(key: str) -> None:
-    s = TeleopState(*BURGER)
-    press(s, "w" * 20 + "a" * 10)
-    for _ in range(30):
-        s.tick()
-    assert s.linear > 0.1 and s.angular > 0.9
-    assert s.press(key)
-    assert (s.target_linear, s.target_angular, s.linear, s.angular) == (0, 0, 0, 0)
-    assert s.tick() == (0.0, 0.0)
-
-
-def scan_with(hits: dict[int, float], range_min: float = 0.12) -> LaserScan:
-    ranges = np.full(360, np.inf, dtype="<f4")
-    for i, r in hits.items():
-        ranges[i] = r
-    return LaserScan(
-        angle_min=0.0,
-        angle_max=6.28,
-        angle_increment=6.28 / 359,
-        range_min=range_min,
-        range_max=3.5,
-        ranges=ranges.tobytes(),
-    )
-
-
-def test_nearest_obstacle_bearing_is_relative_to_the_robot() -> None:
-    assert nearest_obstacle(scan_with({})) is None
-    d, b = nearest_obstacle(scan_with({0: 1.0, 90: 0.5, 200: 2.0})) or (0, 0)
-    assert d == 0.5 and math.isclose(b, 90 * 6.28 / 359)  # left
-    d, b = nearest_obstacle(scan_with({270: 0.4, 10: 0.9})) or (0, 0)
-    assert d == pytest.approx(0.4) and b == pytest.approx(270 * 6.28 / 359 - 2 * math.pi)  # right
-    assert nearest_obstacle(scan_with({5: 0.05}, range_min=0.12)) is None  # below range_min
-    assert describe_bearing(0.05) == "+3° (ahead)"
-    assert describe_bearing(math.radians(-45)) == "-45° (right)"
-    assert describe_bearing(math.radians(179)) == "+179° (behind)"
+# --- (a) the pure logic is tested in test_teleop_model.py -------------------------------------
 
 
 # --- (b) the real Application on a pipe, against a real daemon ----------------------------------
