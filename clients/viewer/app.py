@@ -30,8 +30,10 @@ from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from clients.api import DEFAULT_TIMEOUT, FleetClient
+from clients.viewer.decimate import View
+from clients.viewer.feed import Feed
 from clients.viewer.snapshot import render, take_snapshot
-from clients.viewer.state import Feed, FleetState, View
+from clients.viewer.state import FleetState
 from protocol.errors import FleetError
 from protocol.keys import DEFAULT_PREFIX
 from protocol.zenoh_config import add_zenoh_args, options_from_args

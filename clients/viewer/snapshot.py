@@ -17,7 +17,9 @@ from typing import TYPE_CHECKING
 
 from PIL import Image, ImageDraw, ImageFont
 
-from clients.viewer.state import Feed, FleetState, RobotState, color_rgb
+from clients.viewer.feed import Feed
+from clients.viewer.robot import RobotState
+from clients.viewer.state import FleetState, color_rgb
 
 if TYPE_CHECKING:
     from clients.api import FleetClient

@@ -29,20 +29,21 @@ import math
 import re
 import threading
 import time
-from collections import deque
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from dataclasses import dataclass
 
 import msgspec
 import numpy as np
 import numpy.typing as npt
 
+from clients.naming import natural_key
+from clients.viewer.decimate import (
+    View,
+    pick_scans,
+    pick_trails,
+)
+from clients.viewer.robot import TRAIL_MIN_STEP, TRAIL_SECONDS, KeptScan, RobotState
 from protocol.control import RobotRecord, WorldInfo
-from protocol.errors import FleetError
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry
-
-if TYPE_CHECKING:
-    from clients.api import FleetClient, Subscription
 
 log = logging.getLogger(__name__)
 
@@ -60,23 +61,7 @@ PALETTE: tuple[str, ...] = (
     "#c5e35a",  # lime
     "#ff595e",  # red
 )
-#: ``base_scan`` in ``base_footprint`` (x, y) per model, from the TurtleBot3 URDFs.
-LIDAR_OFFSET: dict[str, tuple[float, float]] = {
-    "burger": (-0.032, 0.0),
-    "waffle": (-0.064, 0.0),
-    "waffle_pi": (-0.064, 0.0),
-}
-LIDAR_RANGE_MAX = 3.5
 
-TRAIL_SECONDS = 5.0  # sim seconds of trail kept per robot
-TRAIL_MIN_STEP = 0.03  # m between stored trail points
-TRAIL_MAX_POINTS = 96
-POSE_HISTORY = 12  # odometry poses kept to match scan stamps (0.4 s at 30 Hz)
-
-SCAN_POINT_BUDGET = 12_000  # beams per frame over all robots (before dropping non-finite)
-MAX_BEAM_STEP = 12  # thinnest scan sent: every 12th beam (30 of 360)
-TRAIL_POINT_BUDGET = 12_000
-MIN_TRAIL_POINTS = 6
 
 
 def color_index(namespace: str) -> int:
@@ -94,125 +79,6 @@ def color_index(namespace: str) -> int:
 def color_rgb(index: int) -> tuple[int, int, int]:
     c = PALETTE[index % len(PALETTE)]
     return int(c[1:3], 16), int(c[3:5], 16), int(c[5:7], 16)
-
-
-def natural_key(name: str) -> tuple[str | int, ...]:
-    """Sort key that puts r2 before r10."""
-    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))
-
-
-@dataclass(frozen=True)
-class View:
-    """What one page shows, as it last reported: the visible world rectangle and toggles."""
-
-    x0: float = -math.inf
-    y0: float = -math.inf
-    x1: float = math.inf
-    y1: float = math.inf
-    scans: bool = True
-    trails: bool = True
-    selected: str | None = None
-
-
-@dataclass
-class _Scan:
-    seq: int
-    stamp: float
-    ranges: F32
-    angle_min: float
-    angle_increment: float
-    range_min: float
-    range_max: float
-
-
-@dataclass
-class RobotState:
-    """One live robot. ``record`` is False until its name, model and footprint are known."""
-
-    namespace: str
-    name: str = ""
-    model: str = ""
-    footprint: tuple[float, ...] = ()  # flat x0, y0, x1, y1, ... in base_footprint
-    color: int = 0
-    record: bool = False
-    has_odom: bool = False
-    stamp: float = 0.0
-    x: float = 0.0
-    y: float = 0.0
-    yaw: float = 0.0
-    v: float = 0.0
-    w: float = 0.0
-    poses: deque[tuple[float, float, float, float]] = field(default_factory=lambda: deque(maxlen=POSE_HISTORY))
-    trail: deque[tuple[float, float, float]] = field(default_factory=lambda: deque(maxlen=TRAIL_MAX_POINTS))
-    scan: _Scan | None = None
-    trail_version: int = 0  # bumped whenever the trail changes
-    _cache_key: tuple[int, int] = (-1, 0)
-    _cache: F32 | None = None
-    _trail_key: tuple[int, int] = (-1, 0)
-    _trail_cache: F32 | None = None
-
-    @property
-    def lidar_offset(self) -> tuple[float, float]:
-        return LIDAR_OFFSET.get(self.model, (0.0, 0.0))
-
-    def trail_array(self, max_points: int = TRAIL_MAX_POINTS) -> F32:
-        """Trail points of the last TRAIL_SECONDS, oldest first, thinned evenly to at most
-        ``max_points`` (keeping both ends). The current pose is not included: a drawing
-        ends the line at the robot."""
-        key = (self.trail_version, max_points)
-        if self._trail_cache is not None and self._trail_key == key:
-            return self._trail_cache
-        arr = np.asarray([(x, y) for _, x, y in self.trail], dtype=np.float32).reshape(-1, 2)
-        if len(arr) > max_points:
-            n = max(2, max_points)
-            arr = arr[np.unique(np.linspace(0, len(arr) - 1, n).round().astype(np.intp))]
-        self._trail_key, self._trail_cache = key, arr
-        return arr
-
-    def scan_points(self, step: int = 1) -> F32:
-        """The latest scan as world-frame points (every ``step``-th beam, finite ranges only),
-        using the odometry pose with the scan's stamp."""
-        scan = self.scan
-        if scan is None:
-            return np.empty((0, 2), np.float32)
-        if self._cache is not None and self._cache_key == (scan.seq, step):
-            return self._cache
-        exact, (px, py, pyaw) = self._pose_at(scan.stamp)
-        ranges = scan.ranges[::step]
-        cos_b, sin_b = _beam_dirs(scan.angle_min, scan.angle_increment, len(scan.ranges), step)
-        ok = np.isfinite(ranges) & (ranges >= scan.range_min) & (ranges <= scan.range_max)
-        r = ranges[ok].astype(np.float64)
-        ox, oy = self.lidar_offset
-        bx = ox + r * cos_b[ok]  # body frame
-        by = oy + r * sin_b[ok]
-        c, s = math.cos(pyaw), math.sin(pyaw)
-        out = np.empty((len(r), 2), np.float32)
-        out[:, 0] = px + c * bx - s * by
-        out[:, 1] = py + s * bx + c * by
-        if exact:
-            self._cache, self._cache_key = out, (scan.seq, step)
-        return out
-
-    def _pose_at(self, stamp: float) -> tuple[bool, tuple[float, float, float]]:
-        best: tuple[float, float, float, float] | None = None
-        for p in self.poses:
-            if best is None or abs(p[0] - stamp) < abs(best[0] - stamp):
-                best = p
-        if best is None:
-            return False, (self.x, self.y, self.yaw)
-        return abs(best[0] - stamp) < 1e-6, best[1:]
-
-
-_beam_cache: dict[tuple[float, float, int, int], tuple[F64, F64]] = {}
-
-
-def _beam_dirs(angle_min: float, inc: float, n: int, step: int) -> tuple[F64, F64]:
-    key = (angle_min, inc, n, step)
-    dirs = _beam_cache.get(key)
-    if dirs is None:
-        a = angle_min + inc * np.arange(0, n, step, dtype=np.float64)
-        dirs = _beam_cache[key] = (np.cos(a), np.sin(a))
-    return dirs
 
 
 @dataclass
@@ -332,7 +198,7 @@ class FleetState:
         if r is None:
             return
         self._scan_seq += 1
-        r.scan = _Scan(self._scan_seq, t, ranges, angle_min, inc, range_min, range_max)
+        r.scan = KeptScan(self._scan_seq, t, ranges, angle_min, inc, range_min, range_max)
 
     # -- records (name, model, footprint), fetched off the zenoh threads --------------------
 
@@ -464,9 +330,15 @@ class FleetState:
                 else:
                     poses[i, :3] = (r.x, r.y, r.yaw)
             sim_time = self.sim_time
-            scans, step = _pick_scans(order, poses, view) if view.scans else ([], 1)
+            scans: list[int] = []
+            step = 1
+            if view.scans:
+                has_scan = np.fromiter((r.scan is not None for r in order), bool, len(order))
+                selected = next((i for i, r in enumerate(order) if r.namespace == view.selected and has_scan[i]), None)
+                beams = next((len(r.scan.ranges) for r in order if r.scan is not None), 360)
+                scans, step = pick_scans(has_scan, selected, beams, poses, view)
             scan_arrays = [order[i].scan_points(1 if order[i].namespace == view.selected else step) for i in scans]
-            trails, per_trail = _pick_trails(order, poses, view) if view.trails else ([], 0)
+            trails, per_trail = pick_trails(poses, view) if view.trails else ([], 0)
             trail_arrays = [order[i].trail_array(per_trail) for i in trails]
         stats = FrameStats(
             robots=n,
@@ -505,102 +377,3 @@ class FleetState:
         return version, meta, data, stats
 
 
-def _in_view(poses: F32, view: View, margin: float) -> npt.NDArray[np.bool_]:
-    x, y = poses[:, 0], poses[:, 1]
-    ok: npt.NDArray[np.bool_] = (
-        (x >= view.x0 - margin) & (x <= view.x1 + margin) & (y >= view.y0 - margin) & (y <= view.y1 + margin)
-    )
-    return ok
-
-
-def _by_distance_to_centre(idx: npt.NDArray[np.intp], poses: F32, view: View) -> list[int]:
-    if not all(math.isfinite(v) for v in (view.x0, view.y0, view.x1, view.y1)):
-        return [int(i) for i in idx]
-    cx, cy = (view.x0 + view.x1) / 2, (view.y0 + view.y1) / 2
-    d = np.hypot(poses[idx, 0] - cx, poses[idx, 1] - cy)
-    return [int(i) for i in idx[np.argsort(d, kind="stable")]]
-
-
-def _pick_scans(order: list[RobotState], poses: F32, view: View) -> tuple[list[int], int]:
-    """Which robots' scans to send and at which beam step.
-
-    Candidates are robots with a scan whose origin is within the view grown by the lidar
-    range. The step is the smallest that fits all of them in SCAN_POINT_BUDGET beams, at most
-    MAX_BEAM_STEP; past that, the robots nearest the view centre are kept. The selected
-    robot's scan is always sent, at full density.
-    """
-    has_scan = np.fromiter((r.scan is not None for r in order), bool, len(order))
-    idx = np.flatnonzero(has_scan & _in_view(poses, view, LIDAR_RANGE_MAX))
-    picked = _by_distance_to_centre(idx, poses, view)
-    sel = next(
-        (i for i, r in enumerate(order) if r.namespace == view.selected and r.scan is not None),
-        None,
-    )
-    if sel is not None:
-        picked = [sel, *(i for i in picked if i != sel)]
-    if not picked:
-        return [], 1
-    beams = len(order[picked[0]].scan.ranges) if order[picked[0]].scan else 360  # type: ignore[union-attr]
-    step = 1
-    while step < MAX_BEAM_STEP and len(picked) * math.ceil(beams / step) > SCAN_POINT_BUDGET:
-        step += 1
-    keep = max(1, SCAN_POINT_BUDGET // math.ceil(beams / step))
-    return picked[:keep], step
-
-
-def _pick_trails(order: list[RobotState], poses: F32, view: View) -> tuple[list[int], int]:
-    """Trails of the robots in view (grown by 1.5 m), each thinned so the frame holds at
-    most TRAIL_POINT_BUDGET points; if even MIN_TRAIL_POINTS each is too many, the robots
-    nearest the view centre keep theirs."""
-    idx = np.flatnonzero(_in_view(poses, view, 1.5))
-    picked = _by_distance_to_centre(idx, poses, view)
-    if not picked:
-        return [], 0
-    per = max(MIN_TRAIL_POINTS, min(TRAIL_MAX_POINTS, TRAIL_POINT_BUDGET // len(picked)))
-    return picked[: TRAIL_POINT_BUDGET // per], per
-
-
-class Feed:
-    """Connects a :class:`FleetState` to a :class:`FleetClient`: the world, presence, odom and
-    scan callbacks, and a thread that fetches the records of robots that appeared (a query,
-    so never from a zenoh callback)."""
-
-    def __init__(self, client: FleetClient, state: FleetState) -> None:
-        self.client = client
-        self.state = state
-        self._stop = threading.Event()
-        self._subs: list[Subscription] = []
-        self._thread = threading.Thread(target=self._records_loop, name="fleet-view-records", daemon=True)
-
-    def start(self) -> None:
-        self.state.world = self.client.world()
-        self._subs.append(self.client.on_presence(self.state.on_presence))
-        # the fleet topics: one message a tick for all robots, where the per-robot topics would
-        # be 35 000 messages a second at 1 000 robots (each ~10 us of this process's CPU)
-        self._subs.append(self.client.on_fleet_odom(self.state.on_fleet_odom))
-        self._subs.append(self.client.on_fleet_scans(self.state.on_fleet_scans))
-        self._thread.start()
-
-    def _records_loop(self) -> None:
-        wanted = self.state.records_wanted
-        while not self._stop.is_set():
-            if not wanted.wait(0.25):
-                continue
-            wanted.clear()
-            self._stop.wait(0.05)  # let a burst of spawns arrive, then ask once
-            try:
-                self.state.apply_records(self.client.robots())
-            except FleetError as e:
-                log.warning("could not list robots: %s", e)
-                self._stop.wait(0.5)
-            if self.state.missing_records():
-                self._stop.wait(0.2)
-                wanted.set()
-
-    def close(self) -> None:
-        self._stop.set()
-        for s in self._subs:
-            s.close()
-        self._subs.clear()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5.0)

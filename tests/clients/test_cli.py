@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import math
 import os
+import shlex
+import shutil
 import subprocess
 import sys
 import time
@@ -13,7 +15,7 @@ import msgspec
 import pytest
 
 from clients import cli
-from clients.cli import Outcome
+from clients.fleet_output import Outcome
 from clients.fleetfile import FleetFileError, load_fleet
 from protocol import RobotRecord
 from tests.conftest import ROOT, Daemon, free_port
@@ -45,6 +47,13 @@ def fleet_spawn(*args: str, env: dict[str, str] | None = None) -> subprocess.Com
     return run([sys.executable, "-c", code, *args], env)
 
 
+def test_the_teleop_hint_is_the_bare_name_when_it_is_on_path(daemon: Daemon) -> None:
+    path = f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"
+    p = fleet("spawn", "tb3_0", "-2", "-0.5", "-e", daemon.endpoint, env={"PATH": path})
+    assert p.returncode == 0, p.stderr
+    assert f"drive it: fleet-teleop tb3_0 -e {daemon.endpoint}" in p.stdout
+
+
 def lines(text: str) -> list[str]:
     return [line for line in text.splitlines() if line.strip()]
 
@@ -58,7 +67,11 @@ def test_spawn_both_forms_and_the_teleop_hint(daemon: Daemon) -> None:
     assert p.returncode == 0, p.stderr
     assert "spawned tb3_0 (burger) in namespace tb3_0 at x -2.000 m, y -0.500 m" in p.stdout
     assert "fleet/tb3_0/cmd_vel" in p.stdout and "fleet/tb3_0/odom" in p.stdout
-    assert f"drive it: fleet-teleop tb3_0 -e {ep}" in p.stdout
+    hint = next(line for line in p.stdout.splitlines() if "drive it:" in line).split("drive it: ")[1]
+    program, *rest = shlex.split(hint)
+    assert rest == ["tb3_0", "-e", ep]
+    # it runs as printed, from where fleet ran (here the venv is not on PATH: its path is given)
+    assert run([program, "--help"]).returncode == 0 if "/" in program else shutil.which(program)
 
     # the seed's spawn_turtlebot NAME NS X Y Z (Z ignored)
     p = fleet("spawn", "burger_1", "TB3_1", "0.5", "-2", "0.01", "-e", ep)
@@ -152,6 +165,10 @@ def test_fleet_file_spawns_the_multi_robot_launch(daemon: Daemon) -> None:
 
     c = daemon.client()
     assert c.alive() == sorted(expected)
+    # spawned in parallel, answered in any order: the list is in name order, every time
+    for _ in range(3):
+        p = fleet("list", "-e", ep)
+        assert [row.split()[0] for row in lines(p.stdout)[1:5]] == ["burger_1", "burger_2", "burger_3", "burger_4"]
     for ns, (x, y) in expected.items():
         pos = c.wait_odom(ns).pose.pose.position  # each answers on its own namespace
         assert (round(pos.x, 3), round(pos.y, 3)) == (x, y), ns

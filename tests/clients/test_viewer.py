@@ -26,15 +26,9 @@ import pytest
 from PIL import Image
 
 from clients.viewer import snapshot
-from clients.viewer.state import (
-    LIDAR_OFFSET,
-    SCAN_POINT_BUDGET,
-    TRAIL_POINT_BUDGET,
-    FleetState,
-    View,
-    color_index,
-    color_rgb,
-)
+from clients.viewer.decimate import SCAN_POINT_BUDGET, TRAIL_POINT_BUDGET, View
+from clients.viewer.robot import LIDAR_OFFSET
+from clients.viewer.state import FleetState, color_index, color_rgb
 from protocol.control import Pose2D, RobotRecord
 from protocol.messages import FleetOdometry, FleetScans, Header, LaserScan, Odometry, Quaternion, Time
 from tests.cdp import CHROMIUM, Chromium

@@ -1,0 +1,129 @@
+"""The grammar of the ``fleet`` and ``fleet-spawn`` command lines (argparse only, no daemon)."""
+
+from __future__ import annotations
+
+import argparse
+
+from protocol.keys import DEFAULT_PREFIX
+from protocol.zenoh_config import add_zenoh_args
+
+COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step")
+
+
+
+
+def _common_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix of the daemon (default: %(default)s)")
+    common.add_argument(
+        "--timeout",
+        type=float,
+        default=3.0,
+        metavar="S",
+        help="seconds to wait for the daemon (default: %(default)g)",
+    )
+    common.add_argument("--json", action="store_true", help="print machine-readable JSON")
+    add_zenoh_args(common, server=False)
+    return common
+
+
+SPAWN_USAGE = (
+    "%(prog)s [options] NAME [NS] [X Y [Z]]\n"
+    "       %(prog)s [options] -entity NAME [-robot_namespace NS] [-x X] [-y Y] [-Y YAW]\n"
+    "       %(prog)s [options] --file FLEET"
+)
+
+
+def _add_spawn_arguments(p: argparse.ArgumentParser) -> None:
+    p.usage = SPAWN_USAGE
+    p.add_argument(
+        "words",
+        nargs="*",
+        metavar="NAME [NS] [X Y [Z]]",
+        help="robot name, then optionally its namespace and position in metres "
+        "(Z is accepted and ignored: the simulation is 2D)",
+    )
+    p.add_argument(
+        "-entity",
+        "--entity",
+        dest="entity",
+        metavar="NAME",
+        help="robot name, as spawn_entity.py -entity",
+    )
+    p.add_argument(
+        "--namespace",
+        "-robot_namespace",
+        dest="namespace",
+        metavar="NS",
+        help="namespace of its topics (default: the name)",
+    )
+    p.add_argument("--x", "-x", dest="x", type=float, metavar="M", help="x in metres (default 0)")
+    p.add_argument("--y", "-y", dest="y", type=float, metavar="M", help="y in metres (default 0)")
+    p.add_argument("--yaw", "-Y", dest="yaw", type=float, metavar="RAD", help="yaw in radians (default 0)")
+    p.add_argument("-z", "--z", dest="z", type=float, metavar="M", help="accepted and ignored (2D)")
+    p.add_argument(
+        "--model",
+        metavar="MODEL",
+        help="burger, waffle or waffle_pi (default: $TURTLEBOT3_MODEL, else burger)",
+    )
+    p.add_argument(
+        "-f",
+        "--file",
+        metavar="FLEET",
+        help="spawn every robot of a fleet file: a path, or a shipped fleet by name (tb3_multi)",
+    )
+
+
+def build_parser(
+    prog: str = "fleet",
+) -> tuple[argparse.ArgumentParser, dict[str, argparse.ArgumentParser]]:
+    """The top-level parser (for help) and one parser per command (for parsing)."""
+    common = _common_parser()
+    top = argparse.ArgumentParser(
+        prog=prog,
+        description="Spawn, delete and list the robots of a running fleetsim daemon (simd).",
+        epilog="Exit codes: 0 ok, 1 refused by the daemon, 2 usage error, 3 no daemon answered. "
+        "Run 'fleet COMMAND --help' for a command's options.",
+    )
+    sub = top.add_subparsers(dest="command", metavar="COMMAND")
+    cmds: dict[str, argparse.ArgumentParser] = {}
+
+    def add(name: str, help_: str) -> argparse.ArgumentParser:
+        cmds[name] = sub.add_parser(name, parents=[common], help=help_, description=help_)
+        return cmds[name]
+
+    _add_spawn_arguments(add("spawn", "spawn a robot, or a fleet file"))
+    add("delete", "delete robots by name or namespace").add_argument("names", nargs="+", metavar="NAME")
+    add("list", "list the live robots with model, pose and velocity, in name order (burger_2 before burger_10)")
+    add("world", "describe the loaded world")
+    add("clock", "show the simulation clock")
+    add("pause", "pause the simulation")
+    add("resume", "resume a paused simulation")
+    add("reset", "time to zero, robots back to their spawn poses").add_argument(
+        "--seed", type=int, help="new noise seed"
+    )
+    add("step", "advance a paused simulation by N ticks of 1/30 s").add_argument(
+        "ticks", nargs="?", type=int, default=1, metavar="N"
+    )
+    return top, cmds
+
+
+def spawn_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=prog,
+        parents=[_common_parser()],
+        description="Spawn a TurtleBot3 into a running fleetsim daemon (same as 'fleet spawn').",
+        epilog="Exit codes: 0 ok, 1 refused by the daemon, 2 usage error, 3 no daemon answered.",
+    )
+    _add_spawn_arguments(p)
+    return p
+
+
+_VALUE_FLAGS = frozenset(
+    {"-e", "--connect", "-l", "--listen", "-m", "--mode", "-c", "--config", "--cfg", "--prefix", "--timeout"}
+)
+
+
+def takes_value(arg: str) -> bool:
+    """Whether ``arg`` is a global flag whose value follows it (so the next word is no command)."""
+    return arg in _VALUE_FLAGS

@@ -1,0 +1,60 @@
+"""The viewer's feed: a :class:`FleetState` kept current from a daemon over a
+:class:`~clients.api.FleetClient` (the world, presence, the fleet topics, and a thread that
+asks for the records of robots that appeared)."""
+
+from __future__ import annotations
+
+import logging
+import threading
+
+from clients.api import FleetClient, Subscription
+from clients.viewer.state import FleetState
+from protocol.errors import FleetError
+
+log = logging.getLogger(__name__)
+
+
+class Feed:
+    """Connects a :class:`FleetState` to a :class:`FleetClient`: the world, presence, odom and
+    scan callbacks, and a thread that fetches the records of robots that appeared (a query,
+    so never from a zenoh callback)."""
+
+    def __init__(self, client: FleetClient, state: FleetState) -> None:
+        self.client = client
+        self.state = state
+        self._stop = threading.Event()
+        self._subs: list[Subscription] = []
+        self._thread = threading.Thread(target=self._records_loop, name="fleet-view-records", daemon=True)
+
+    def start(self) -> None:
+        self.state.world = self.client.world()
+        self._subs.append(self.client.on_presence(self.state.on_presence))
+        # the fleet topics: one message a tick for all robots, where the per-robot topics would
+        # be 35 000 messages a second at 1 000 robots (each ~10 us of this process's CPU)
+        self._subs.append(self.client.on_fleet_odom(self.state.on_fleet_odom))
+        self._subs.append(self.client.on_fleet_scans(self.state.on_fleet_scans))
+        self._thread.start()
+
+    def _records_loop(self) -> None:
+        wanted = self.state.records_wanted
+        while not self._stop.is_set():
+            if not wanted.wait(0.25):
+                continue
+            wanted.clear()
+            self._stop.wait(0.05)  # let a burst of spawns arrive, then ask once
+            try:
+                self.state.apply_records(self.client.robots())
+            except FleetError as e:
+                log.warning("could not list robots: %s", e)
+                self._stop.wait(0.5)
+            if self.state.missing_records():
+                self._stop.wait(0.2)
+                wanted.set()
+
+    def close(self) -> None:
+        self._stop.set()
+        for s in self._subs:
+            s.close()
+        self._subs.clear()
+        if self._thread.is_alive():
+            self._thread.join(timeout=5.0)
