@@ -294,7 +294,8 @@ def test_hostile_cmd_vel_is_dropped_and_the_daemon_lives(
     with raw_session(d.endpoint) as s:
         # BLOCK: a loaded machine must not drop the test's own (fragmented, 100 kB) puts
         block = zenoh.CongestionControl.BLOCK
-        pubs = [s.declare_publisher(k, congestion_control=block) for k in ("fleet/tb3_0/cmd_vel", "fleet/ghost/cmd_vel")]
+        keys = ("fleet/tb3_0/cmd_vel", "fleet/ghost/cmd_vel")
+        pubs = [s.declare_publisher(k, congestion_control=block) for k in keys]
         # a session a moment old may not know the daemon's subscriber yet, and drop a put
         assert wait_until(lambda: all(matching(p) for p in pubs), 5.0)
         for p in pubs:  # (the second for a robot that does not exist)
