@@ -373,7 +373,8 @@ def test_page_follows_the_fleet(daemon: Daemon, viewer_factory: Callable[..., Vi
 
     # robot pixels where the page's own transform puts each robot
     browser.evaluate("viewerStats.select(null)")
-    time.sleep(0.3)
+    drawn = browser.evaluate("viewerStats.frames")
+    browser.wait_for(f"viewerStats.frames > {drawn} + 2")  # the page drew without the selection
     img = Image.open(io.BytesIO(browser.screenshot()))
     dpr = browser.evaluate("window.devicePixelRatio")
     scale = browser.evaluate("viewerStats.view().scale")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from typing import Any
 
 import msgspec
@@ -255,7 +254,6 @@ def test_daemon_keeps_serving_after_a_client_vanishes_mid_request(
     # the requester is gone; the step still completes and the daemon answers others
     assert wait_until(lambda: c.clock().tick >= 300, 10.0)
     assert d.alive()
-    time.sleep(0.1)
     assert c.robots()
 
 

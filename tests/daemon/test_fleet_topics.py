@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import math
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -105,13 +104,26 @@ def test_each_tick_of_the_fleet_topics_equals_the_robots_own_messages(
         c.on_scan("*", lambda ns, m: scans.append((ns, m)))
         # a subscription reaches the daemon some milliseconds after it is declared: warm up
         assert wait_until(lambda: bool(c.step(6)) and bool(fleet_odom and fleet_scan and odom and scans), 5.0)
-        time.sleep(0.1)
-        for received in (fleet_odom, fleet_scan, odom, scans):
-            received.clear()
+        start = c.clock().clock.to_seconds()
         for k in range(12):
             c.step(1, cmd_vel={n: (0.2, 0.8 * math.sin(k + i)) for i, n in enumerate(names)})
-        assert wait_until(lambda: len(fleet_odom) == 12 and len(odom) == 36 and len(scans) == 6, 3.0)
-        assert wait_until(lambda: len(fleet_scan) >= 2, 1.0)
+
+        def since_start() -> None:
+            """Keep only what the 12 steps published (a warm-up message may still arrive)."""
+            def stamp(data: bytes, type_: type[FleetOdometry] | type[FleetScans]) -> float:
+                return msgspec.msgpack.decode(data, type=type_).stamp.to_seconds()
+
+            with lock:
+                fleet_odom[:] = [d for d in fleet_odom if stamp(d, FleetOdometry) > start]
+                fleet_scan[:] = [d for d in fleet_scan if stamp(d, FleetScans) > start]
+            odom[:] = [(ns, m) for ns, m in odom if m.header.stamp.to_seconds() > start]
+            scans[:] = [(ns, m) for ns, m in scans if m.header.stamp.to_seconds() > start]
+
+        def complete() -> bool:
+            since_start()
+            return len(fleet_odom) == 12 and len(odom) == 36 and len(scans) == 6 and len(fleet_scan) >= 2
+
+        assert wait_until(complete, 5.0)
 
         by_stamp: dict[tuple[int, int, str], Odometry] = {
             (m.header.stamp.sec, m.header.stamp.nanosec, ns): m for ns, m in odom
@@ -228,17 +240,21 @@ def running(engine: Engine) -> Iterator[None]:
         t.join(5.0)
 
 
-def _warm_up(engine: Engine, *received: list[Any]) -> None:
+def _warm_up(engine: Engine, *received: list[Any]) -> int:
     """Tick until every subscriber has received something (a subscription reaches the daemon
-    some milliseconds after it is declared), then forget what they received."""
-    deadline = time.monotonic() + 5.0
-    while not all(received):
-        assert time.monotonic() < deadline, "the subscribers received nothing"
+    some milliseconds after it is declared); returns the last warm-up tick: what the test
+    counts comes after it."""
+    for _ in range(250):
+        if all(received):
+            break
         engine.tick()
-        time.sleep(0.02)
-    time.sleep(0.1)
-    for r in received:
-        r.clear()
+        wait_until(lambda: all(received), 0.02)
+    assert all(received), "the subscribers received nothing"
+    return engine.sim.tick
+
+
+def _ticks(fleet: list[bytes]) -> list[int]:
+    return [round(msgspec.msgpack.decode(d, type=FleetOdometry).stamp.to_seconds() * 30) for d in fleet]
 
 
 def test_a_robot_deleted_between_two_ticks_is_in_neither_view_of_the_second() -> None:
@@ -247,18 +263,30 @@ def test_a_robot_deleted_between_two_ticks_is_in_neither_view_of_the_second() ->
         zenoh.open(client_config(endpoint)) as user,
     ):
         fleet: list[bytes] = []
-        robots: list[str] = []
+        robots: list[tuple[str, int]] = []
+        dec = msgspec.msgpack.Decoder(Odometry)
         _collect(user, "fleet/odometry", fleet, threading.Lock())
-        user.declare_subscriber("fleet/*/odom", lambda s: robots.append(str(s.key_expr)))
-        _warm_up(engine, fleet, robots)
+
+        def on_odom(s: zenoh.Sample) -> None:
+            robots.append((str(s.key_expr), round(dec.decode(s.payload.to_bytes()).header.stamp.to_seconds() * 30)))
+
+        user.declare_subscriber("fleet/*/odom", on_odom)
+        warm = _warm_up(engine, fleet, robots)
         with running(engine):
             get(user, "fleet/delete", json.dumps({"name": "b"}).encode(), 5.0)
             get(user, "fleet/sim/step", b'{"ticks": 1}', 5.0)
-            assert wait_until(lambda: len(fleet) == 1 and len(robots) == 2, 2.0)
-        time.sleep(0.1)
-        last = msgspec.msgpack.decode(fleet[-1], type=FleetOdometry)
+            tick = warm + 1
+
+            def of_the_tick() -> tuple[list[bytes], list[str]]:
+                return [d for d, t in zip(fleet, _ticks(fleet), strict=True) if t == tick], sorted(
+                    k for k, t in robots if t == tick
+                )
+
+            assert wait_until(lambda: len(of_the_tick()[0]) == 1 and len(of_the_tick()[1]) == 2, 2.0)
+        fleet_msgs, robot_keys = of_the_tick()
+        last = msgspec.msgpack.decode(fleet_msgs[0], type=FleetOdometry)
         assert last.namespaces == ["a", "c"] and last.array("x").tolist() == [-3.0, -1.0]
-        assert sorted(robots) == ["fleet/a/odom", "fleet/c/odom"] and len(fleet) == 1
+        assert robot_keys == ["fleet/a/odom", "fleet/c/odom"]
 
 
 def test_after_a_reset_both_views_start_again_from_the_first_tick() -> None:
@@ -283,8 +311,10 @@ def test_after_a_reset_both_views_start_again_from_the_first_tick() -> None:
             get(user, "fleet/sim/reset", None, 5.0)
             reply, err = get(user, "fleet/sim/step", b'{"ticks": 7}', 5.0)
         assert reply is not None and json.loads(reply)["ticks_run"] == 7, err
-        time.sleep(0.3)
-        fleet_ticks = [round(msgspec.msgpack.decode(d, type=FleetOdometry).stamp.to_seconds() * 30) for d in fleet]
+        # the reply came after the step's messages were put: wait for them to arrive
+        assert wait_until(lambda: _ticks(fleet)[-7:] == list(range(1, 8)), 5.0), _ticks(fleet)[-7:]
+        assert wait_until(lambda: [round(t * 30) for t in stamps][-7:] == list(range(1, 8)), 5.0)
+        fleet_ticks = _ticks(fleet)
         robot_ticks = [round(t * 30) for t in stamps]
         for ticks in (fleet_ticks, robot_ticks):
             cut = len(ticks) - 7
