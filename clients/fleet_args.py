@@ -12,18 +12,17 @@ COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "res
 
 
 
+def add_daemon_args(p: argparse.ArgumentParser, waiting: str = "seconds to wait for the daemon") -> None:
+    """What every client takes to reach a daemon: its prefix, a deadline, and zenoh's flags."""
+    p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix of the daemon (default: %(default)s)")
+    p.add_argument("--timeout", type=float, default=3.0, metavar="S", help=f"{waiting} (default: %(default)g)")
+    add_zenoh_args(p, server=False)
+
+
 def _common_parser() -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix of the daemon (default: %(default)s)")
-    common.add_argument(
-        "--timeout",
-        type=float,
-        default=3.0,
-        metavar="S",
-        help="seconds to wait for the daemon (default: %(default)g)",
-    )
+    add_daemon_args(common)
     common.add_argument("--json", action="store_true", help="print machine-readable JSON")
-    add_zenoh_args(common, server=False)
     return common
 
 

@@ -34,40 +34,15 @@ from prompt_toolkit.output import Output
 from prompt_toolkit.styles import Style
 
 from clients.api import FleetClient
-from clients.teleop_model import (
-    ANG_RAMP,
-    ANG_VEL_STEP,
-    LIN_RAMP,
-    LIN_VEL_STEP,
-    ODOM_STALE_S,
-    RATE_HZ,
-    Seen,
-    TeleopState,
-    describe_bearing,
-    nearest_obstacle,
-    screen,
-    status,
-)
+from clients.fleet_args import add_daemon_args
+from clients.teleop_model import RATE_HZ, Seen, TeleopState, nearest_obstacle, screen, status
 from protocol.control import RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import LaserScan, Odometry
-from protocol.zenoh_config import ZenohOptions, add_zenoh_args, options_from_args
+from protocol.zenoh_config import ZenohOptions, options_from_args
 
-__all__ = [  # the model's names stay importable from here, as before the split
-    "ANG_RAMP",
-    "ANG_VEL_STEP",
-    "LIN_RAMP",
-    "LIN_VEL_STEP",
-    "ODOM_STALE_S",
-    "RATE_HZ",
-    "Seen",
-    "Teleop",
-    "TeleopState",
-    "describe_bearing",
-    "main",
-    "nearest_obstacle",
-]
+__all__ = ["Teleop", "build_parser", "main"]  # the model: clients/teleop_model.py
 
 #: A status poll of the daemon (clock query) every this many seconds.
 POLL_PERIOD = 0.5
@@ -350,15 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 quit, 1 no such robot, 2 usage error, 3 no daemon answered.",
     )
     p.add_argument("namespace", metavar="NS", help="the robot's namespace (or name), e.g. TB3_1")
-    p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix of the daemon (default: %(default)s)")
-    p.add_argument(
-        "--timeout",
-        type=float,
-        default=3.0,
-        metavar="S",
-        help="seconds to wait for the daemon at start (default: %(default)g)",
-    )
-    add_zenoh_args(p, server=False)
+    add_daemon_args(p, "seconds to wait for the daemon at start")
     return p
 
 

@@ -23,10 +23,8 @@ from prompt_toolkit.output import DummyOutput
 
 from clients import FleetClient, wait_until
 from clients import teleop as teleop_mod
-from clients.teleop import (
-    LIN_RAMP,
-    Teleop,
-)
+from clients.teleop import Teleop
+from clients.teleop_model import LIN_RAMP
 from protocol import Twist
 from protocol.zenoh_config import ZenohOptions
 from tests.conftest import ROOT, Daemon, free_port, simd_command
