@@ -23,12 +23,10 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import shutil
 import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from pathlib import Path
 
 import msgspec
 import zenoh
@@ -49,6 +47,7 @@ from clients.spawn_plan import SpawnPlan, UsageError, plan_spawn
 from protocol.control import Clock, RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.programs import runnable
 from protocol.zenoh_config import (
     ZenohOptions,
     options_from_args,
@@ -208,22 +207,8 @@ def _report_many(
     return EXIT_REFUSED if errors else EXIT_OK
 
 
-def teleop_program() -> str:
-    """How the user runs fleet-teleop from here: its name when it is on PATH, else the script
-    beside this Python (``.venv/bin/fleet-teleop`` when that is under the current directory)."""
-    if shutil.which("fleet-teleop"):
-        return "fleet-teleop"
-    beside = Path(sys.executable).parent / "fleet-teleop"
-    if not beside.exists():
-        return "fleet-teleop"
-    try:
-        return str(beside.absolute().relative_to(Path.cwd()))
-    except ValueError:
-        return str(beside.absolute())
-
-
 def _describe_spawn(rec: RobotRecord, args: argparse.Namespace) -> None:
-    print("\n".join(describe_spawn(rec, teleop_command(rec.namespace, args, teleop_program()))), flush=True)
+    print("\n".join(describe_spawn(rec, teleop_command(rec.namespace, args, runnable("fleet-teleop")))), flush=True)
 
 
 # --- delete, list, world, clock, sim control ----------------------------------------------------

@@ -165,8 +165,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"simd: running the slower numpy versions of {', '.join(slow)} ({why})", flush=True)
         else:
             log.info("compiled fast paths: %s", ", ".join(fast))
+        from protocol.programs import runnable
+
         print(
-            f"simd: spawn a robot with: fleet-spawn tb3_0 --x {x:g} --y {y:g}   "
+            f"simd: spawn a robot with: {runnable('fleet-spawn')} tb3_0 --x {x:g} --y {y:g}   "
             f'(or zenoh get -s {keys.spawn} -v \'{{"name": "tb3_0", "x": {x:g}, "y": {y:g}}}\')',
             flush=True,
         )
