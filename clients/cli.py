@@ -62,7 +62,6 @@ EXIT_NO_DAEMON = 3
 NO_DAEMON_CODES = (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT)
 
 
-
 # --- entry points -----------------------------------------------------------------------------
 
 

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import signal
 import sys
+from collections.abc import Mapping
 from types import FrameType
 
 from protocol.keys import DEFAULT_PREFIX, Keys
@@ -64,7 +66,57 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--paused", action="store_true", help="start paused")
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     add_zenoh_args(p, server=True)
+    add_ros_args(p)
     return p
+
+
+def add_ros_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("ROS 2 (docs/ros2.md)")
+    g.add_argument(
+        "--ros2",
+        action="store_true",
+        help="also serve the robots to ROS 2 tools over rmw_zenoh (topics, /tf, /clock, /spawn_entity)",
+    )
+    g.add_argument(
+        "--ros-domain-id",
+        type=int,
+        default=None,
+        metavar="N",
+        help="ROS domain (default: $ROS_DOMAIN_ID, else 0)",
+    )
+    g.add_argument(
+        "--ros-distro",
+        choices=("jazzy", "humble"),
+        default=None,
+        help="the ROS tools' distribution: jazzy (and later) key topics by type hash, humble does not "
+        "(default: $ROS_DISTRO if it is one of these, else jazzy)",
+    )
+    g.add_argument(
+        "--ros-router",
+        default=None,
+        metavar="ENDPOINT",
+        help="the rmw_zenoh router to join (default: tcp/localhost:7447, where rmw_zenohd listens)",
+    )
+    g.add_argument(
+        "--ros-serve-router",
+        action="store_true",
+        help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed)",
+    )
+
+
+def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int, str]:
+    """The ROS domain and distro from the flags, else the environment (ValueError if bad)."""
+    domain = args.ros_domain_id
+    if domain is None:
+        raw = env.get("ROS_DOMAIN_ID", "").strip()
+        try:
+            domain = int(raw) if raw else 0
+        except ValueError:
+            raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {raw!r}") from None
+    if not 0 <= domain <= 232:
+        raise ValueError(f"the ROS domain id must be in 0..232, got {domain}")
+    distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ("jazzy", "humble") else "jazzy")
+    return int(domain), distro
 
 
 def fail(message: str) -> int:
@@ -94,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--seed must be >= 0")
     try:
         keys = Keys(args.prefix)
+        ros_domain, ros_distro = ros_settings(args, os.environ)
     except ValueError as e:
         return fail(str(e))
 
@@ -140,10 +193,28 @@ def main(argv: list[str] | None = None) -> int:
         if "in use" in msg.lower():
             return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
         return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
+    ros_session = None
+    if args.ros2:
+        from simd.adapters.ros2.session import DEFAULT_ROUTER, ros_config
+
+        router = args.ros_router or DEFAULT_ROUTER
+        try:
+            ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router))
+        except (ValueError, zenoh.ZError) as e:
+            session.close()
+            return fail(f"cannot open the ROS 2 session on {router}: {_short(e)}")
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused)
     adapter: FleetAdapter | None = None
+    ros_adapter = None
     try:
         adapter = FleetAdapter(session, keys, engine)
+        if ros_session is not None:
+            from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
+
+            ros_adapter = Ros2Adapter(ros_session, engine, RosOptions(ros_domain, ros_distro))  # type: ignore[arg-type]
+            how = "serving as the router on" if args.ros_serve_router else "joining the router at"
+            print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {args.ros_router or DEFAULT_ROUTER}",
+                  flush=True)  # fmt: skip
 
         def on_signal(signum: int, frame: FrameType | None) -> None:
             log.info("received %s, stopping", signal.Signals(signum).name)
@@ -174,9 +245,13 @@ def main(argv: list[str] | None = None) -> int:
         )
         engine.run()
     finally:
+        if ros_adapter is not None:
+            ros_adapter.close()
         if adapter is not None:
             adapter.close()
         sim.close()
+        if ros_session is not None:
+            ros_session.close()
         session.close()
     log.info("stopped at sim time %.3f s", sim.time)
     return 0

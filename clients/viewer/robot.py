@@ -28,7 +28,6 @@ TRAIL_MIN_STEP = 0.03  # m between stored trail points
 POSE_HISTORY = 12  # odometry poses kept to match scan stamps (0.4 s at 30 Hz)
 
 
-
 @dataclass
 class KeptScan:
     seq: int

@@ -110,6 +110,7 @@ def test_each_tick_of_the_fleet_topics_equals_the_robots_own_messages(
 
         def since_start() -> None:
             """Keep only what the 12 steps published (a warm-up message may still arrive)."""
+
             def stamp(data: bytes, type_: type[FleetOdometry] | type[FleetScans]) -> float:
                 return msgspec.msgpack.decode(data, type=type_).stamp.to_seconds()
 

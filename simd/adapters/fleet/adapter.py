@@ -16,9 +16,7 @@ publisher that falls behind slows the simulation down instead of piling up ticks
 from __future__ import annotations
 
 import logging
-import queue
-import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from functools import partial
 from typing import Any
 
@@ -31,50 +29,17 @@ from protocol.keys import Keys
 from protocol.messages import Time
 from simd.adapters.fleet import requests
 from simd.adapters.fleet.commands import CommandIntake
-from simd.adapters.fleet.publisher import Publisher, undeclare_all
+from simd.adapters.fleet.publisher import Publisher
+from simd.adapters.zenoh_entities import undeclare_all
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.engine import Engine
+from simd.engine.outbox import Outbox
 from simd.engine.ports import Deleted, Event, Result, Spawned, StepResult
 from simd.engine.ports import RobotList as EngineRobotList
 from simd.wire import convert
 
 log = logging.getLogger(__name__)
-
-#: Ticks (and events, replies) waiting for the outbox thread before the simulation waits: two
-#: scan periods, so that the simulation runs on while the outbox waits for a batch of scans
-#: (100 robots at --rtf 0, fleet topics: RTF 155-162 with 3, 168-190 with 12, no better with 30).
-OUTBOX_DEPTH = 12
-
-
-class Outbox:
-    """One thread that runs what it is given, in order; ``put`` blocks while it is full."""
-
-    def __init__(self, name: str, depth: int = OUTBOX_DEPTH) -> None:
-        self._queue: queue.Queue[Callable[[], object] | None] = queue.Queue(depth)
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
-        self._thread.start()
-
-    def put(self, work: Callable[[], object]) -> None:
-        self._queue.put(work)
-
-    def _run(self) -> None:
-        while (work := self._queue.get()) is not None:
-            try:
-                work()
-            except Exception:  # a failed put or reply must not stop the ones after it
-                log.exception("sending failed")
-
-    def flush(self, timeout: float = 5.0) -> bool:
-        """Wait until everything put so far has run (tests, and a clean shutdown)."""
-        done = threading.Event()
-        self.put(done.set)
-        return done.wait(timeout)
-
-    def close(self, timeout: float = 5.0) -> None:
-        """Run what is queued, then stop."""
-        self._queue.put(None)
-        self._thread.join(timeout)
 
 
 class FleetAdapter:

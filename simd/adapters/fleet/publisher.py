@@ -26,6 +26,7 @@ import zenoh
 from protocol.codec import encode, media_type
 from protocol.keys import Keys
 from protocol.messages import LaserScan, Odometry, Time
+from simd.adapters.zenoh_entities import Interest, undeclare_all
 from simd.core.lidar import LidarSpec
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.wire import convert
@@ -45,38 +46,6 @@ def to_json(topic: str, msgpack_payload: bytes) -> bytes:
         d["intensities"] = scan.intensities_array().tolist()
         return msgspec.json.encode(d)
     return msgspec.json.encode(msgspec.msgpack.decode(msgpack_payload, type=Odometry))
-
-
-def undeclare_all(entities: list[Any]) -> None:
-    """Undeclare zenoh entities, going on past any that the session already dropped."""
-    for ent in entities:
-        try:
-            ent.undeclare()
-        except zenoh.ZError:
-            pass
-    entities.clear()
-
-
-class Interest:
-    """Whether some subscriber matches a publisher, kept current by zenoh's matching listener.
-
-    Asking zenoh every tick costs little CPU but hands the GIL back and forth between the
-    adapter's thread and the simulation's at every call; the listener's callback runs only
-    when somebody arrives or leaves, and a tick just reads a bool.
-    """
-
-    def __init__(self, pub: zenoh.Publisher) -> None:
-        self._listener = pub.declare_matching_listener(self._changed)  # first, so no change is missed
-        self.matching = bool(pub.matching_status.matching)  # type: ignore[attr-defined]  # the stub says bool
-
-    def _changed(self, status: zenoh.MatchingStatus) -> None:
-        self.matching = bool(status.matching)
-
-    def __bool__(self) -> bool:
-        return self.matching
-
-    def undeclare(self) -> None:
-        self._listener.undeclare()
 
 
 class Publisher:

@@ -1,0 +1,146 @@
+"""rmw_zenoh's naming: data keys, liveliness tokens (the ROS graph) and the attachment.
+
+From rmw_zenoh's design document ("Topic and Service name mapping", "Graph Cache",
+"Publishers"): a topic ``/tb3_0/scan`` of ``sensor_msgs/msg/LaserScan`` in domain 0 is the key
+``0/tb3_0/scan/sensor_msgs::msg::dds_::LaserScan_/<hash>``; a participant announces itself,
+its nodes and their publishers, subscriptions and services with liveliness tokens under
+``@ros2_lv/<domain>/<zid>/...``, where names have every ``/`` replaced by ``%``. ROS tools
+subscribe on exact keys and read the graph from the tokens only: without a token a topic is
+invisible to ``ros2 topic list`` and a service never "available" to a waiting client.
+
+Every sample carries a 33-byte attachment (sequence number, wall-clock source timestamp, the
+publisher's 16-byte GID); a ROS subscription drops samples without one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+import time
+from dataclasses import dataclass
+from enum import Enum
+
+from simd.adapters.ros2.interfaces import Distro, dds_type_name, type_hash
+
+ADMIN_SPACE = "@ros2_lv"
+
+
+class Kind(Enum):
+    """Entity kinds of a liveliness token."""
+
+    NODE = "NN"
+    PUBLISHER = "MP"
+    SUBSCRIPTION = "MS"
+    SERVICE = "SS"
+    CLIENT = "SC"
+
+
+@dataclass(frozen=True)
+class Qos:
+    """The QoS an entity advertises (rmw enum numbers: reliability 1 reliable, 2 best effort;
+    durability 1 transient local, 2 volatile; history 1 keep last)."""
+
+    depth: int = 10
+    reliable: bool = True
+    transient_local: bool = False
+
+    def chunk(self) -> str:
+        """``<rel>:<dur>:<hist>,<depth>:<deadline>:<lifespan>:<liveliness>`` with defaults elided."""
+        rel = 1 if self.reliable else 2
+        dur = 1 if self.transient_local else 2
+        return f"{rel}:{dur}:1,{self.depth}:,:,:,,"
+
+
+#: QoS as the Gazebo TurtleBot3 and tf2 advertise them
+ODOM_QOS = Qos(depth=1)
+SCAN_QOS = Qos(depth=5)
+IMU_QOS = Qos(depth=5)
+JOINT_STATES_QOS = Qos(depth=1000)
+CMD_VEL_QOS = Qos(depth=1)
+TF_QOS = Qos(depth=100)
+TF_STATIC_QOS = Qos(depth=1, transient_local=True)
+CLOCK_QOS = Qos(depth=1, reliable=False)
+SERVICE_QOS = Qos(depth=10)
+
+
+def mangle(name: str) -> str:
+    """A ROS name in a token chunk: every ``/`` becomes ``%``; empty becomes ``%``."""
+    return name.replace("/", "%") or "%"
+
+
+@dataclass(frozen=True)
+class Topic:
+    """A topic or service with its type, as keys and tokens name it in one domain."""
+
+    name: str  # fully qualified: /tb3_0/scan
+    typename: str  # sensor_msgs/msg/LaserScan
+    domain: int
+    distro: Distro
+
+    @property
+    def hash(self) -> str:
+        return type_hash(self.typename, self.distro)
+
+    @property
+    def dds_type(self) -> str:
+        return dds_type_name(self.typename)
+
+    @property
+    def key(self) -> str:
+        return f"{self.domain}/{self.name.strip('/')}/{self.dds_type}/{self.hash}"
+
+
+@dataclass(frozen=True)
+class Node:
+    """A ROS node of this participant: ``namespace`` '/' or '/tb3_0', ``name`` 'turtlebot3_diff_drive'."""
+
+    domain: int
+    zid: str
+    node_id: int
+    namespace: str
+    name: str
+    enclave: str = ""
+
+    def _prefix(self, entity_id: int, kind: Kind) -> str:
+        ns = "" if self.namespace == "/" else self.namespace
+        return "/".join(
+            (
+                ADMIN_SPACE,
+                str(self.domain),
+                self.zid,
+                str(self.node_id),
+                str(entity_id),
+                kind.value,
+                mangle(self.enclave),
+                mangle(ns),
+                mangle(self.name),
+            )
+        )
+
+    def token(self) -> str:
+        return self._prefix(self.node_id, Kind.NODE)
+
+    def entity_token(self, entity_id: int, kind: Kind, topic: Topic, qos: Qos) -> str:
+        return "/".join((self._prefix(entity_id, kind), mangle(topic.name), topic.dds_type, topic.hash, qos.chunk()))
+
+
+def gid(token: str) -> bytes:
+    """A stable 16-byte GID for an entity (rmw_zenoh hashes its token too)."""
+    return hashlib.blake2b(token.encode(), digest_size=16).digest()
+
+
+_ATTACHMENT = struct.Struct("<qqB")
+
+
+def attachment(sequence: int, gid16: bytes, stamp_ns: int | None = None) -> bytes:
+    """The 33 bytes rmw_zenoh expects on every sample, query and reply."""
+    ts = time.time_ns() if stamp_ns is None else stamp_ns
+    return _ATTACHMENT.pack(sequence, ts, 16) + gid16
+
+
+def parse_attachment(raw: bytes) -> tuple[int, int, bytes]:
+    """(sequence, source timestamp ns, GID), or ValueError for anything but the 33-byte form."""
+    if len(raw) != 33 or raw[16] != 16:
+        raise ValueError(f"not an rmw_zenoh attachment ({len(raw)} bytes)")
+    seq, ts, _ = _ATTACHMENT.unpack_from(raw)
+    return seq, ts, bytes(raw[17:])

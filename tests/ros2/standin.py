@@ -1,0 +1,319 @@
+"""A stand-in for a ROS 2 tool on rmw_zenoh, for tests on a machine without ROS.
+
+Written from rmw_zenoh's design document (docs/design.md: "Topic and Service name mapping",
+"Graph Cache", "Publishers", "Service Clients/Servers") and zenoh-ext's advanced pub/sub, and
+deliberately **not** from the daemon's adapter: it imports nothing of ``simd``. Keys and tokens
+are built here by their own rules; types, CDR and hashes come from rosbags, with the service
+types written in IDL (the adapter parses .srv text), so a mistake in one is not copied into
+the other. It behaves as a ROS process does:
+
+- a peer session that connects to the router, multicast scouting off;
+- subscribers on the exact key a ROS subscriber declares (a wrong type name or hash delivers
+  nothing), which reject samples without the 33-byte attachment;
+- publishers and service clients that send the attachment, and a client that matches the
+  reply by its sequence number;
+- a late ``/tf_static`` subscriber that asks the publishers' caches for history, as a
+  transient-local ROS subscription does;
+- the graph read from liveliness tokens, parsed as rmw_zenoh's GraphCache parses them.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import queue
+import struct
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+import zenoh.ext
+from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+# -- types and hashes ---------------------------------------------------------------------------
+
+_IDL = """
+module gazebo_msgs { module srv {
+  struct SpawnEntity_Request { string name; string xml; string robot_namespace;
+                               geometry_msgs::msg::Pose initial_pose; string reference_frame; };
+  struct SpawnEntity_Response { boolean success; string status_message; };
+  struct DeleteEntity_Request { string name; };
+  struct DeleteEntity_Response { boolean success; string status_message; };
+  struct SpawnEntity_Event { service_msgs::msg::ServiceEventInfo info;
+    sequence<gazebo_msgs::srv::SpawnEntity_Request, 1> request;
+    sequence<gazebo_msgs::srv::SpawnEntity_Response, 1> response; };
+  struct SpawnEntity { gazebo_msgs::srv::SpawnEntity_Request request_message;
+    gazebo_msgs::srv::SpawnEntity_Response response_message; gazebo_msgs::srv::SpawnEntity_Event event_message; };
+  struct DeleteEntity_Event { service_msgs::msg::ServiceEventInfo info;
+    sequence<gazebo_msgs::srv::DeleteEntity_Request, 1> request;
+    sequence<gazebo_msgs::srv::DeleteEntity_Response, 1> response; };
+  struct DeleteEntity { gazebo_msgs::srv::DeleteEntity_Request request_message;
+    gazebo_msgs::srv::DeleteEntity_Response response_message; gazebo_msgs::srv::DeleteEntity_Event event_message; };
+}; };
+module example_interfaces { module srv {
+  struct AddTwoInts_Request { int64 a; int64 b; };
+  struct AddTwoInts_Response { int64 sum; };
+  struct AddTwoInts_Event { service_msgs::msg::ServiceEventInfo info;
+    sequence<example_interfaces::srv::AddTwoInts_Request, 1> request;
+    sequence<example_interfaces::srv::AddTwoInts_Response, 1> response; };
+  struct AddTwoInts { example_interfaces::srv::AddTwoInts_Request request_message;
+    example_interfaces::srv::AddTwoInts_Response response_message;
+    example_interfaces::srv::AddTwoInts_Event event_message; };
+}; };
+"""
+
+
+@functools.lru_cache(maxsize=1)
+def types() -> Typestore:
+    """Jazzy's messages, rosidl's ServiceEventInfo (uint8 client_gid) and the services in IDL."""
+    jazzy = get_typestore(Stores.ROS2_JAZZY)
+    store = get_typestore(Stores.EMPTY)
+    store.register({k: v for k, v in jazzy.fielddefs.items() if k != "service_msgs/msg/ServiceEventInfo"})
+    store.register(
+        get_types_from_msg(
+            "uint8 event_type\nbuiltin_interfaces/Time stamp\nuint8[16] client_gid\nint64 sequence_number",
+            "service_msgs/msg/ServiceEventInfo",
+        )
+    )
+    store.register(get_types_from_idl(_IDL))
+    return store
+
+
+def type_hash(typename: str, distro: str = "jazzy") -> str:
+    return "TypeHashNotSupported" if distro == "humble" else types().hash_rihs01(typename)
+
+
+def dds_name(typename: str) -> str:
+    pkg, kind, name = typename.split("/")
+    return f"{pkg}::{kind}::dds_::{name}_"
+
+
+def key(domain: int, name: str, typename: str, distro: str = "jazzy") -> str:
+    return f"{domain}/{name.strip('/')}/{dds_name(typename)}/{type_hash(typename, distro)}"
+
+
+def msg(typename: str, **fields: Any) -> Any:
+    return types().types[typename](**fields)
+
+
+def serialize(message: Any, typename: str) -> bytes:
+    return bytes(types().serialize_cdr(message, typename))
+
+
+def deserialize(payload: bytes, typename: str) -> Any:
+    return types().deserialize_cdr(payload, typename)
+
+
+def attachment(seq: int, gid: bytes) -> bytes:
+    """rmw_zenoh's attachment: int64 sequence, int64 source timestamp (ns), 16, the GID."""
+    return struct.pack("<qqB", seq, time.time_ns(), 16) + gid
+
+
+# -- the graph --------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Entity:
+    """A parsed liveliness token."""
+
+    zid: str
+    node_id: str
+    entity_id: str
+    kind: str  # NN MP MS SS SC
+    namespace: str  # '/' or '/tb3_0'
+    node: str
+    topic: str = ""  # '/tb3_0/scan'
+    type: str = ""  # 'sensor_msgs::msg::dds_::LaserScan_'
+    hash: str = ""
+    qos: str = ""
+
+    @property
+    def node_fqn(self) -> str:
+        return f"{self.namespace.rstrip('/')}/{self.node}"
+
+
+def _unmangle(chunk: str) -> str:
+    return "/" if chunk == "%" else chunk.replace("%", "/")
+
+
+def parse_token(token: str) -> Entity:
+    """As rmw_zenoh's Entity parser: rejects foreign admin spaces, unknown kinds, short tokens."""
+    parts = token.split("/")
+    if parts[0] != "@ros2_lv":
+        raise ValueError(f"not a ROS token: {token}")
+    if any(p == "" for p in parts):
+        raise ValueError(f"empty chunk in {token}")
+    kind = parts[5]
+    if kind not in ("NN", "MP", "MS", "SS", "SC"):
+        raise ValueError(f"unknown entity kind {kind}")
+    if kind == "NN":
+        if len(parts) != 9:
+            raise ValueError(f"a node token has 9 chunks: {token}")
+        return Entity(parts[2], parts[3], parts[4], kind, _unmangle(parts[7]), parts[8])
+    if len(parts) != 13:
+        raise ValueError(f"an entity token has 13 chunks: {token}")
+    return Entity(
+        parts[2], parts[3], parts[4], kind, _unmangle(parts[7]), parts[8],
+        _unmangle(parts[9]), parts[10], parts[11], parts[12],
+    )  # fmt: skip
+
+
+def parse_qos(chunk: str) -> dict[str, int]:
+    """``<rel>:<dur>:<hist>,<depth>:...``: the fields tf2 and echo care about."""
+    rel, dur, hist = chunk.split(":")[:3]
+    _history, depth = hist.split(",")
+    return {"reliability": int(rel or 1), "durability": int(dur or 2), "depth": int(depth or 10)}
+
+
+# -- the tool ---------------------------------------------------------------------------------
+
+
+class StandIn:
+    """One ROS process: a peer session joined to the router at ``router``."""
+
+    def __init__(self, router: str, domain: int = 0, distro: str = "jazzy") -> None:
+        conf = zenoh.Config()
+        conf.insert_json5("mode", '"peer"')
+        conf.insert_json5("connect/endpoints", json.dumps([router]))
+        conf.insert_json5("listen/endpoints", '["tcp/127.0.0.1:0"]')
+        conf.insert_json5("scouting/multicast/enabled", "false")
+        self.session = zenoh.open(conf)
+        self.domain = domain
+        self.distro = distro
+        self.gid = hashlib.md5(str(self.session.zid()).encode()).digest()
+        self._seq = 0
+        self._entities: list[Any] = []
+        self.rejected: list[str] = []  # samples a ROS subscription would have dropped
+
+    def close(self) -> None:
+        for e in self._entities:
+            try:
+                e.undeclare()
+            except zenoh.ZError:
+                pass
+        self.session.close()
+
+    def key(self, name: str, typename: str) -> str:
+        return key(self.domain, name, typename, self.distro)
+
+    # graph
+    def graph(self) -> list[Entity]:
+        out = []
+        for reply in self.session.liveliness().get(f"@ros2_lv/{self.domain}/**", timeout=3.0):
+            if reply.ok is not None:
+                out.append(parse_token(str(reply.ok.key_expr)))
+        return out
+
+    def wait_graph(self, predicate: Any, timeout: float = 10.0) -> list[Entity]:
+        """Poll the graph until ``predicate(entities)`` holds (a peer's tokens take a moment)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            g = self.graph()
+            if predicate(g) or time.monotonic() > deadline:
+                return g
+            time.sleep(0.1)
+
+    # topics
+    def subscribe(self, name: str, typename: str) -> queue.Queue[tuple[Any, int, bytes]]:
+        """Decoded messages of the topic, with their sequence numbers and raw payloads."""
+        out: queue.Queue[tuple[Any, int, bytes]] = queue.Queue()
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            att = sample.attachment.to_bytes() if sample.attachment is not None else b""
+            if len(att) != 33 or att[16] != 16:
+                self.rejected.append(f"{sample.key_expr}: attachment of {len(att)} bytes")
+                return
+            seq = struct.unpack_from("<q", att)[0]
+            payload = sample.payload.to_bytes()
+            out.put((deserialize(payload, typename), seq, payload))
+
+        self._entities.append(self.session.declare_subscriber(self.key(name, typename), on_sample))
+        return out
+
+    def subscribe_late(self, name: str, typename: str, depth: int = 100) -> queue.Queue[Any]:
+        """A transient-local subscription: history from the publishers' caches, then live."""
+        out: queue.Queue[Any] = queue.Queue()
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            att = sample.attachment.to_bytes() if sample.attachment is not None else b""
+            if len(att) != 33:
+                self.rejected.append(f"{sample.key_expr}: attachment of {len(att)} bytes")
+                return
+            out.put(deserialize(sample.payload.to_bytes(), typename))
+
+        sub = zenoh.ext.declare_advanced_subscriber(
+            self.session,
+            self.key(name, typename),
+            on_sample,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=depth),
+            subscriber_detection=True,
+        )
+        self._entities.append(sub)
+        return out
+
+    def publisher(self, name: str, typename: str) -> Callable[..., None]:
+        pub = self.session.declare_publisher(self.key(name, typename))
+        self._entities.append(pub)
+        gid = hashlib.md5(f"{name}{typename}".encode()).digest()
+        seq = [0]
+
+        def put(message: Any, with_attachment: bool = True) -> None:
+            seq[0] += 1
+            payload = serialize(message, typename)
+            if with_attachment:
+                pub.put(payload, attachment=attachment(seq[0], gid))
+            else:
+                pub.put(payload)
+
+        return put
+
+    # services
+    def call(self, name: str, srv_type: str, request: Any, timeout: float = 10.0) -> Any:
+        """As an rclcpp client: get with the attachment, take the reply whose sequence matches."""
+        self._seq += 1
+        seq = self._seq
+        payload = serialize(request, f"{srv_type}_Request")
+        replies = self.session.get(
+            self.key(name, srv_type),
+            payload=payload,
+            attachment=attachment(seq, self.gid),
+            target=zenoh.QueryTarget.ALL_COMPLETE,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            timeout=timeout,
+        )
+        for reply in replies:
+            if reply.ok is None:
+                continue  # rclcpp logs error replies and keeps waiting
+            att = reply.ok.attachment.to_bytes() if reply.ok.attachment is not None else b""
+            if len(att) != 33:
+                self.rejected.append(f"reply without attachment on {name}")
+                continue
+            rseq = struct.unpack_from("<q", att)[0]
+            if rseq != seq or att[17:] != self.gid:
+                self.rejected.append(f"reply for sequence {rseq}, not {seq}")
+                continue
+            return deserialize(reply.ok.payload.to_bytes(), f"{srv_type}_Response")
+        raise TimeoutError(f"no reply from {name}")
+
+    def service_available(self, name: str, srv_type: str) -> bool:
+        """As GraphCache::service_server_is_available: an SS token of that name and type."""
+        return any(e.kind == "SS" and e.topic == name and e.type == dds_name(srv_type) for e in self.graph())
+
+
+def wait_for(q: queue.Queue[Any], predicate: Any = None, timeout: float = 10.0) -> Any:
+    """The first item of ``q`` for which ``predicate`` holds."""
+    deadline = time.monotonic() + timeout
+    while True:
+        left = deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("nothing arrived")
+        try:
+            item = q.get(timeout=left)
+        except queue.Empty:
+            raise TimeoutError("nothing arrived") from None
+        if predicate is None or predicate(item):
+            return item

@@ -1,0 +1,280 @@
+"""simd --ros2 seen from a ROS tool: the stand-in (standin.py) on a loopback ROS domain.
+
+Nothing here imports the adapter: keys, tokens, attachments and CDR are the stand-in's own,
+from rmw_zenoh's design document and rosbags.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.ros2.conftest import DATA, RosDomain, spawn_request, twist
+from tests.ros2.standin import StandIn, dds_name, msg, parse_qos, type_hash, wait_for
+
+SPAWN = ("/spawn_entity", "gazebo_msgs/srv/SpawnEntity")
+DELETE = ("/delete_entity", "gazebo_msgs/srv/DeleteEntity")
+#: the Gazebo TurtleBot3 multi-robot launch: TB3_<n>, entity burger_<n>, these poses
+MULTI = [("burger_1", "TB3_1", -2.0, -0.5), ("burger_2", "TB3_2", 0.5, -2.0),
+         ("burger_3", "TB3_3", 2.0, 0.5), ("burger_4", "TB3_4", -0.5, 2.0)]  # fmt: skip
+
+
+def spawn(tool: StandIn, name: str, ns: str, x: float, y: float, yaw: float = 0.0, **kw: Any) -> Any:
+    return tool.call(*SPAWN, spawn_request(name, ns, x, y, yaw, **kw))
+
+
+def latest(q: Any, timeout: float = 10.0) -> Any:
+    """The newest message of a subscription (waiting for one if none is there yet)."""
+    item = wait_for(q, timeout=timeout)
+    while not q.empty():
+        item = q.get_nowait()
+    return item
+
+
+def drive_until(tool: StandIn, ns: str, publish: Callable[[], None], moved: Callable[[Any], bool]) -> Any:
+    """Publish commands (as teleop does, 10 a second) until the robot's odometry shows ``moved``."""
+    odom = tool.subscribe(f"/{ns}/odom", "nav_msgs/msg/Odometry")
+    deadline = time.monotonic() + 15.0
+    while time.monotonic() < deadline:
+        publish()
+        time.sleep(0.1)
+        m = latest(odom)[0]
+        if moved(m):
+            return m
+    raise AssertionError(f"{ns} did not move")
+
+
+def test_spawner_node_flow_four_namespaced_robots_then_drive_one(ros: RosDomain) -> None:
+    """The multi-robot tutorial: wait for /spawn_entity, spawn TB3_1..4 with the SDF text, drive TB3_1."""
+    tool = ros.tool
+    assert tool.service_available(*SPAWN)
+    for name, ns, x, y in MULTI:
+        r = spawn(tool, name, ns, x, y)
+        assert r.success, r.status_message
+        assert r.status_message == f"SpawnEntity: Successfully spawned entity [{name}]"
+    robots = {r.name: r for r in ros.daemon.client().robots()}
+    assert sorted(robots) == [m[0] for m in MULTI]
+    for name, ns, x, y in MULTI:
+        assert robots[name].namespace == ns and robots[name].model == "burger"
+        assert (robots[name].pose.x, robots[name].pose.y) == pytest.approx((x, y))
+
+    pub = tool.publisher("/TB3_1/cmd_vel", "geometry_msgs/msg/Twist")
+    m = drive_until(tool, "TB3_1", lambda: pub(twist(0.2, 0.0)), lambda m: m.pose.pose.position.x > -1.9)
+    assert m.twist.twist.linear.x == pytest.approx(0.2, abs=0.02)
+    others = {r.name: r for r in ros.daemon.client().robots()}
+    for name, _, x, y in MULTI[1:]:  # only the commanded robot moved
+        assert (others[name].pose.x, others[name].pose.y) == pytest.approx((x, y))
+
+
+def test_spawn_refusals_use_gazebos_words_and_change_nothing(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    dup = spawn(tool, "burger_1", "TB3_9", 0.5, -2.0)
+    assert (dup.success, dup.status_message) == (False, "Entity [burger_1] already exists.")
+    nan = spawn(tool, "burger_2", "TB3_2", math.nan, 0.0)
+    assert not nan.success and "not finite" in nan.status_message
+    alien = spawn(tool, "x", "X", 0.5, -2.0, xml='<sdf version="1.6"><model name="pr2"/></sdf>')
+    assert not alien.success and "[pr2]" in alien.status_message
+    broken = spawn(tool, "y", "Y", 0.5, -2.0, xml="<sdf><model")
+    assert not broken.success and broken.status_message.startswith("Failed to parse XML string")
+    empty = spawn(tool, "z", "Z", 0.5, -2.0, xml="<sdf version='1.6'></sdf>")
+    assert not empty.success and empty.status_message.startswith("Failed to find a model or light on SDF")
+    frame = spawn(tool, "w", "W", 0.5, -2.0, reference_frame="burger_1::base_link")
+    assert not frame.success and frame.status_message.startswith("Reference frame [burger_1::base_link] not found")
+    wall = spawn(tool, "v", "V", 0.0, 0.0)  # the centre pillar of turtlebot3_world
+    assert not wall.success
+    assert [r.name for r in ros.daemon.client().robots()] == ["burger_1"]
+    assert ros.daemon.alive()
+
+
+def test_urdf_waffle_and_yaw_from_the_quaternion(ros: RosDomain) -> None:
+    xml = (DATA / "turtlebot3_waffle.urdf").read_text()
+    r = spawn(ros.tool, "waffle_1", "", 0.5, -2.0, yaw=1.2, xml=xml)
+    assert r.success, r.status_message
+    (robot,) = ros.daemon.client().robots()
+    assert robot.model == "waffle" and robot.namespace == "waffle_1"  # no robot_namespace: the name
+    assert robot.pose.yaw == pytest.approx(1.2)
+
+
+def test_delete_entity(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    tool.wait_graph(lambda g: any(e.node_fqn == "/TB3_1/turtlebot3_diff_drive" for e in g))
+    r = tool.call(*DELETE, msg("gazebo_msgs/srv/DeleteEntity_Request", name="burger_1"))
+    assert (r.success, r.status_message) == (True, "Successfully deleted entity [burger_1]")
+    again = tool.call(*DELETE, msg("gazebo_msgs/srv/DeleteEntity_Request", name="burger_1"))
+    assert (again.success, again.status_message) == (False, "Entity [burger_1] does not exist")
+    g = tool.wait_graph(lambda g: not any(e.namespace == "/TB3_1" for e in g))
+    assert not any(e.namespace == "/TB3_1" for e in g)  # its nodes and topics vanished with it
+    assert ros.daemon.client().robots() == []
+
+
+def test_graph_names_nodes_topics_and_services_as_gazebo(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind == "NN" for e in g) == 5)
+    nodes = {e.node_fqn for e in g if e.kind == "NN"}
+    robot_nodes = ["turtlebot3_diff_drive", "turtlebot3_laserscan", "turtlebot3_imu", "turtlebot3_joint_state",
+                   "robot_state_publisher"]  # fmt: skip
+    assert nodes == {"/fleetsim", *(f"/TB3_1/{n}" for n in robot_nodes)}
+    pubs = {(e.topic, e.type): e for e in g if e.kind == "MP"}
+    expected = {
+        "/TB3_1/odom": "nav_msgs/msg/Odometry",
+        "/TB3_1/scan": "sensor_msgs/msg/LaserScan",
+        "/TB3_1/imu": "sensor_msgs/msg/Imu",
+        "/TB3_1/joint_states": "sensor_msgs/msg/JointState",
+        "/tf": "tf2_msgs/msg/TFMessage",
+        "/tf_static": "tf2_msgs/msg/TFMessage",
+        "/clock": "rosgraph_msgs/msg/Clock",
+    }
+    for topic, typename in expected.items():
+        e = pubs[(topic, dds_name(typename))]
+        assert e.hash == type_hash(typename)
+    assert parse_qos(pubs[("/tf_static", dds_name("tf2_msgs/msg/TFMessage"))].qos) == {
+        "reliability": 1, "durability": 1, "depth": 1,
+    }  # fmt: skip
+    subs = {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"}
+    assert subs == {dds_name("geometry_msgs/msg/Twist"), dds_name("geometry_msgs/msg/TwistStamped")}
+    services = {(e.topic, e.type, e.hash) for e in g if e.kind == "SS"}
+    for name, typename in (SPAWN, DELETE):
+        assert (name, dds_name(typename), type_hash(typename)) in services
+
+
+def test_odom_scan_tf_and_their_fields(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5, yaw=0.5).success
+    assert spawn(tool, "burger_2", "TB3_2", 0.5, -2.0).success
+    odom = tool.subscribe("/TB3_1/odom", "nav_msgs/msg/Odometry")
+    scan = tool.subscribe("/TB3_1/scan", "sensor_msgs/msg/LaserScan")
+    tf = tool.subscribe("/tf", "tf2_msgs/msg/TFMessage")
+    first, second = wait_for(odom), wait_for(odom)
+    assert second[1] == first[1] + 1  # the attachment counts the publisher's samples
+    o = first[0]
+    assert (o.header.frame_id, o.child_frame_id) == ("TB3_1/odom", "TB3_1/base_footprint")
+    p = o.pose.pose
+    assert (p.position.x, p.position.y) == pytest.approx((-2.0, -0.5))
+    assert 2 * math.atan2(p.orientation.z, p.orientation.w) == pytest.approx(0.5)
+    assert np.diag(o.pose.covariance.reshape(6, 6)).tolist() == [1e-5, 1e-5, 1e12, 1e12, 1e12, 1e-3]
+    s = wait_for(scan)[0]
+    assert s.header.frame_id == "TB3_1/base_scan"
+    assert (s.angle_min, s.range_min, s.range_max) == pytest.approx((0.0, 0.12, 3.5))
+    assert s.angle_max == pytest.approx(6.28)
+    assert (s.angle_max - s.angle_min) / s.angle_increment + 1 == pytest.approx(360)  # what Karto checks
+    assert (s.time_increment, s.scan_time) == (0.0, 0.0)
+    assert len(s.ranges) == len(s.intensities) == 360
+    finite = s.ranges[np.isfinite(s.ranges)]
+    assert len(finite) > 0 and finite.min() >= 0.12 and finite.max() <= 3.5
+    frames: set[str] = set()
+    deadline = time.monotonic() + 10
+    while frames != {"TB3_1/base_footprint", "TB3_2/base_footprint"} and time.monotonic() < deadline:
+        t = wait_for(tf)[0]
+        frames = {x.child_frame_id for x in t.transforms}
+        assert all(x.header.frame_id == x.child_frame_id.replace("base_footprint", "odom") for x in t.transforms)
+    assert frames == {"TB3_1/base_footprint", "TB3_2/base_footprint"}
+    assert tool.rejected == []
+
+
+def test_tf_static_reaches_a_late_joiner(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    xml = (DATA / "turtlebot3_waffle.urdf").read_text()
+    assert spawn(tool, "waffle_2", "TB3_2", 0.5, -2.0, xml=xml).success
+    late = StandIn(ros.router)  # joins after both robots' static frames were sent
+    try:
+        q = late.subscribe_late("/tf_static", "tf2_msgs/msg/TFMessage")
+        got: dict[tuple[str, str], Any] = {}
+        deadline = time.monotonic() + 10
+        while len(got) < 6 and time.monotonic() < deadline:
+            for t in wait_for(q).transforms:
+                got[(t.header.frame_id, t.child_frame_id)] = t.transform.translation
+        assert set(got) == {
+            ("TB3_1/base_footprint", "TB3_1/base_link"), ("TB3_1/base_link", "TB3_1/base_scan"),
+            ("TB3_1/base_link", "TB3_1/imu_link"), ("TB3_2/base_footprint", "TB3_2/base_link"),
+            ("TB3_2/base_link", "TB3_2/base_scan"), ("TB3_2/base_link", "TB3_2/imu_link"),
+        }  # fmt: skip
+        scan1, scan2 = got[("TB3_1/base_link", "TB3_1/base_scan")], got[("TB3_2/base_link", "TB3_2/base_scan")]
+        assert (scan1.x, scan1.z) == pytest.approx((-0.032, 0.172))  # burger
+        assert (scan2.x, scan2.z) == pytest.approx((-0.064, 0.122))  # waffle
+        assert late.rejected == []
+    finally:
+        late.close()
+
+
+def test_twist_stamped_drives_and_turns(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    pub = tool.publisher("/TB3_1/cmd_vel", "geometry_msgs/msg/TwistStamped")
+    header = msg("std_msgs/msg/Header", stamp=msg("builtin_interfaces/msg/Time", sec=0, nanosec=0), frame_id="")
+    stamped = msg("geometry_msgs/msg/TwistStamped", header=header, twist=twist(0.0, 1.0))
+    m = drive_until(tool, "TB3_1", lambda: pub(stamped), lambda m: abs(m.twist.twist.angular.z) > 0.5)
+    assert m.twist.twist.angular.z == pytest.approx(1.0, abs=0.05)
+
+
+def test_clock_follows_lockstep(ros_factory: Callable[..., RosDomain]) -> None:
+    ros = ros_factory("--lockstep")
+    clock = ros.tool.subscribe("/clock", "rosgraph_msgs/msg/Clock")
+    c = ros.daemon.client()
+    time.sleep(0.5)  # let the subscription reach the daemon before the step it should see
+    c.step(45)
+    t = None
+    deadline = time.monotonic() + 10
+    while t != 1.5 and time.monotonic() < deadline:
+        m = wait_for(clock)[0]
+        t = m.clock.sec + m.clock.nanosec * 1e-9
+    assert t == 1.5  # 45 ticks of 1/30 s, on /clock for use_sim_time
+
+
+def test_bad_input_on_ros_keys_changes_nothing(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    s = tool.session
+    domain_key = f"0/TB3_1/cmd_vel/{dds_name('geometry_msgs/msg/Twist')}/{type_hash('geometry_msgs/msg/Twist')}"
+    s.put(domain_key, b"\x00\x01\x00\x00garbage")  # malformed CDR
+    s.put(domain_key, b"")  # empty
+    s.put(f"0/TB3_1/cmd_vel/{dds_name('std_msgs/msg/String')}/{type_hash('std_msgs/msg/String')}", b"x")
+    pub = tool.publisher("/TB3_404/cmd_vel", "geometry_msgs/msg/Twist")
+    pub(twist(0.2, 0.0))  # no such robot
+    nan = tool.publisher("/TB3_1/cmd_vel", "geometry_msgs/msg/Twist")
+    nan(twist(math.nan, 0.0))
+    spawn_key = f"0/spawn_entity/{dds_name(SPAWN[1])}/{type_hash(SPAWN[1])}"
+    replies = list(s.get(spawn_key, payload=b"\x00\x01\x00\x00\xff\xff\xff\x7f", timeout=5.0))
+    decoded = [r.ok for r in replies if r.ok is not None]
+    assert len(decoded) == 1  # a malformed request still gets an answer, success false
+    from tests.ros2.standin import deserialize
+
+    answer = deserialize(decoded[0].payload.to_bytes(), "gazebo_msgs/srv/SpawnEntity_Response")
+    assert not answer.success and "malformed" in answer.status_message
+    # a wildcard get is somebody looking: no answer, no robot
+    looked = list(s.get("0/spawn_entity/**", payload=b"", timeout=2.0))
+    assert [r for r in looked if r.ok is not None] == []
+    c = ros.daemon.client()
+    deadline = time.monotonic() + 5
+    while c.clock().dropped_commands < 5 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert c.clock().dropped_commands >= 5
+    (robot,) = c.robots()
+    assert (robot.pose.x, robot.pose.y) == pytest.approx((-2.0, -0.5))
+    assert ros.daemon.alive()
+    log = ros.daemon.log()
+    assert "Traceback" not in log
+
+
+def test_humble_keys_carry_no_hash(ros_factory: Callable[..., RosDomain]) -> None:
+    ros = ros_factory(distro="humble", domain=7)
+    tool = ros.tool  # a Humble tool in domain 7
+    g = tool.graph()
+    assert all(e.hash == "TypeHashNotSupported" for e in g if e.kind != "NN")
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    odom = tool.subscribe("/TB3_1/odom", "nav_msgs/msg/Odometry")
+    assert wait_for(odom)[0].header.frame_id == "TB3_1/odom"
+    jazzy = StandIn(ros.router, 7, "jazzy")  # a Jazzy tool's keys carry hashes: nothing answers them
+    try:
+        with pytest.raises(TimeoutError):
+            jazzy.call(*SPAWN, spawn_request("burger_2", "TB3_2", 0.5, -2.0), timeout=1.0)
+    finally:
+        jazzy.close()

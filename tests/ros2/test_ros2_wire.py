@@ -1,0 +1,306 @@
+"""Golden tests of the ROS 2 adapter's wire: hashes, keys, tokens, attachments and CDR bytes,
+each checked against an independent source (rosbags, rmw_zenoh's documented examples, the
+stand-in's own key and token rules)."""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import numpy as np
+import pytest
+import zenoh.ext
+from rosbags.typesys import Stores, get_typestore
+
+from simd.adapters.ros2 import cdr, gazebo_services, graph, interfaces
+from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
+from simd.core.snapshot import TickSnapshot
+from tests.ros2 import standin
+from tests.ros2.conftest import DATA
+
+MESSAGES = [
+    "nav_msgs/msg/Odometry", "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState",
+    "tf2_msgs/msg/TFMessage", "rosgraph_msgs/msg/Clock", "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped",
+]  # fmt: skip
+#: published values (rmw_zenoh's design document; `ros2 topic info -v` outputs) and, for the
+#: services, values computed by the reference's method and pinned here
+PINNED = {
+    "std_msgs/msg/String": "df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18",
+    "sensor_msgs/msg/LaserScan": "64c191398013af96509d518dac71d5164f9382553fce5c1f8cca5be7924bd828",
+    "nav_msgs/msg/Odometry": "3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
+    "tf2_msgs/msg/TFMessage": "e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087",
+    "rosgraph_msgs/msg/Clock": "692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
+    "geometry_msgs/msg/Twist": "9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a",
+    "geometry_msgs/msg/TwistStamped": "5f0fcd4f81d5d06ad9b4c4c63e3ea51b82d6ae4d0558f1d475229b1121db6f64",
+    "gazebo_msgs/srv/SpawnEntity": "a01b6c5a00d47ced8923b43e9e24764fcaa176d2eac6d88163cdb50a02f6cfb5",
+    "gazebo_msgs/srv/DeleteEntity": "81b2eed68ee3a93de5a70a0915b57c51dbed9518da77ca5f0abc47222f1f44a2",
+}
+JAZZY = get_typestore(Stores.ROS2_JAZZY)
+
+
+# -- hashes, keys, tokens, attachments -----------------------------------------------------------
+
+
+@pytest.mark.parametrize("typename", [*MESSAGES, "gazebo_msgs/srv/SpawnEntity", "gazebo_msgs/srv/DeleteEntity"])
+def test_type_hashes_agree_with_the_stand_in(typename: str) -> None:
+    assert interfaces.type_hash(typename, "jazzy") == standin.type_hash(typename)
+    assert interfaces.type_hash(typename, "humble") == "TypeHashNotSupported"
+
+
+@pytest.mark.parametrize(("typename", "digest"), PINNED.items())
+def test_pinned_hashes(typename: str, digest: str) -> None:
+    assert interfaces.rihs01(typename) == f"RIHS01_{digest}"
+
+
+def test_the_design_documents_service_example_through_our_own_path() -> None:
+    """AddTwoInts: catches rosbags' char client_gid in ServiceEventInfo, which breaks every service hash."""
+    store = interfaces._hashing_store()
+    store.register(
+        interfaces.service_definitions(
+            "example_interfaces/srv/AddTwoInts", "int64 a\nint64 b", "int64 sum", with_event=True
+        )
+    )
+    assert interfaces.rihs01("example_interfaces/srv/AddTwoInts", store) == (
+        "RIHS01_e118de6bf5eeb66a2491b5bda11202e7b68f198d6f67922cf30364858239c81a"
+    )
+    assert standin.type_hash("example_interfaces/srv/AddTwoInts") == interfaces.rihs01(
+        "example_interfaces/srv/AddTwoInts", store
+    )
+
+
+def test_keys() -> None:
+    assert Topic("/chatter", "std_msgs/msg/String", 0, "jazzy").key == (
+        "0/chatter/std_msgs::msg::dds_::String_/RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+    )  # design.md's example
+    for name, typename in [
+        ("/tb3_0/scan", "sensor_msgs/msg/LaserScan"),
+        ("/spawn_entity", "gazebo_msgs/srv/SpawnEntity"),
+    ]:
+        for distro in interfaces.DISTROS:
+            assert Topic(name, typename, 3, distro).key == standin.key(3, name, typename, distro)
+    assert Topic("/x", "gazebo_msgs/srv/SpawnEntity", 0, "humble").key == (
+        "0/x/gazebo_msgs::srv::dds_::SpawnEntity_/TypeHashNotSupported"
+    )
+
+
+def test_tokens_parse_as_the_graph_cache_reads_them() -> None:
+    node = Node(domain=5, zid="ab12", node_id=7, namespace="/tb3_0", name="turtlebot3_laserscan")
+    n = standin.parse_token(node.token())
+    assert (n.kind, n.node_fqn, n.zid, n.node_id, n.entity_id) == (
+        "NN",
+        "/tb3_0/turtlebot3_laserscan",
+        "ab12",
+        "7",
+        "7",
+    )
+    assert node.token() == "@ros2_lv/5/ab12/7/7/NN/%/%tb3_0/turtlebot3_laserscan"
+    topic = Topic("/tb3_0/scan", "sensor_msgs/msg/LaserScan", 5, "jazzy")
+    e = standin.parse_token(node.entity_token(9, Kind.PUBLISHER, topic, graph.SCAN_QOS))
+    assert (e.kind, e.topic, e.type, e.hash) == ("MP", "/tb3_0/scan", "sensor_msgs::msg::dds_::LaserScan_", topic.hash)
+    assert standin.parse_qos(e.qos) == {"reliability": 1, "durability": 2, "depth": 5}
+    root = Node(domain=0, zid="ab12", node_id=1, namespace="/", name="fleetsim")
+    assert standin.parse_token(root.token()).namespace == "/"
+    assert Qos(depth=1, transient_local=True).chunk() == "1:1:1,1:,:,:,,"  # the reference's example
+    assert Qos(depth=10).chunk() == "1:2:1,10:,:,:,,"
+
+
+def test_attachment_is_rmw_zenohs_33_bytes() -> None:
+    gid = bytes(range(16))
+    raw = graph.attachment(42, gid, stamp_ns=1_700_000_000_123)
+    assert raw == zenoh.ext.z_serialize((zenoh.ext.Int64(42), zenoh.ext.Int64(1_700_000_000_123), gid)).to_bytes()
+    assert graph.parse_attachment(raw) == (42, 1_700_000_000_123, gid)
+    with pytest.raises(ValueError):
+        graph.parse_attachment(raw[:-1])
+
+
+# -- CDR bytes --------------------------------------------------------------------------------
+
+
+def _t(typename: str, /, **kw: Any) -> Any:
+    return JAZZY.types[typename](**kw)
+
+
+def _header(t: float, frame: str) -> object:
+    sec, ns = cdr.stamp(t)
+    return _t("std_msgs/msg/Header", stamp=_t("builtin_interfaces/msg/Time", sec=sec, nanosec=ns), frame_id=frame)
+
+
+def _v3(x: float, y: float, z: float) -> object:
+    return _t("geometry_msgs/msg/Vector3", x=float(x), y=float(y), z=float(z))
+
+
+def _q(yaw: float) -> object:
+    return _t("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))
+
+
+def _ref(message: object, typename: str) -> bytes:
+    return bytes(JAZZY.serialize_cdr(message, typename))
+
+
+NAMES = ["tb3_0", "a", "robot_with_a_long_name_17", "ab"]  # strings of every length mod 4
+
+
+def _snapshot() -> TickSnapshot:
+    rng = np.random.default_rng(3)
+    n = len(NAMES)
+    return TickSnapshot(
+        tick=371, time=371 / 30, namespaces=NAMES, x=rng.normal(size=n), y=rng.normal(size=n),
+        yaw=rng.uniform(-3, 3, n), linear_x=rng.normal(size=n), linear_y=rng.normal(size=n) * 0.01,
+        angular_z=rng.normal(size=n), scan_namespaces=[], scan_rows=np.zeros((0, 360), np.float32),
+    )  # fmt: skip
+
+
+def test_odometry_bytes_equal_rosbags() -> None:
+    snap = _snapshot()
+    diag = (1e-5, 1e-5, 1e12, 1e12, 1e12, 1e-3)
+    cov = np.diag(diag).ravel()
+    out = cdr.OdometryCdr(diag).encode(snap, [3, 0, 2, 1])
+    for payload, i in zip(out, [3, 0, 2, 1], strict=True):
+        ns = NAMES[i]
+        ref = _t(
+            "nav_msgs/msg/Odometry",
+            header=_header(snap.time, f"{ns}/odom"),
+            child_frame_id=f"{ns}/base_footprint",
+            pose=_t("geometry_msgs/msg/PoseWithCovariance", covariance=cov,
+                    pose=_t("geometry_msgs/msg/Pose", position=_t("geometry_msgs/msg/Point", x=snap.x[i], y=snap.y[i],
+                                                                   z=0.0), orientation=_q(snap.yaw[i]))),
+            twist=_t("geometry_msgs/msg/TwistWithCovariance", covariance=cov,
+                     twist=_t("geometry_msgs/msg/Twist", linear=_v3(snap.linear_x[i], snap.linear_y[i], 0),
+                              angular=_v3(0, 0, snap.angular_z[i]))),
+        )  # fmt: skip
+        assert payload == _ref(ref, "nav_msgs/msg/Odometry")
+        assert payload[:4] == b"\x00\x01\x00\x00"
+
+
+def test_tf_bytes_equal_rosbags() -> None:
+    snap = _snapshot()
+    rows = [2, 0, 3]
+    transforms = [
+        _t("geometry_msgs/msg/TransformStamped", header=_header(snap.time, f"{NAMES[i]}/odom"),
+           child_frame_id=f"{NAMES[i]}/base_footprint",
+           transform=_t("geometry_msgs/msg/Transform", translation=_v3(snap.x[i], snap.y[i], 0),
+                        rotation=_q(snap.yaw[i])))
+        for i in rows
+    ]  # fmt: skip
+    assert cdr.TfCdr().encode(snap, rows) == _ref(_t("tf2_msgs/msg/TFMessage", transforms=transforms),
+                                                  "tf2_msgs/msg/TFMessage")  # fmt: skip
+
+
+def test_static_tf_of_several_robots_equals_rosbags() -> None:
+    per_robot: list[list[cdr.Transform]] = [
+        [(f"{ns}/base_footprint", f"{ns}/base_link", (0.0, 0.0, 0.01), (0.0, 0.0, 0.0, 1.0)),
+         (f"{ns}/base_link", f"{ns}/base_scan", (-0.032, 0.0, 0.172), (0.0, 0.0, 0.0, 1.0))]
+        for ns in NAMES
+    ]  # fmt: skip
+    blobs = [cdr.transform_elements((0, 0), tfs, first=i == 0) for i, tfs in enumerate(per_robot)]
+    ours = cdr.tf_message(sum(len(t) for t in per_robot), blobs)
+    ref = [
+        _t("geometry_msgs/msg/TransformStamped", header=_header(0.0, parent), child_frame_id=child,
+           transform=_t("geometry_msgs/msg/Transform", translation=_v3(*xyz),
+                        rotation=_t("geometry_msgs/msg/Quaternion", x=q[0], y=q[1], z=q[2], w=q[3])))
+        for tfs in per_robot for parent, child, xyz, q in tfs
+    ]  # fmt: skip
+    assert ours == _ref(_t("tf2_msgs/msg/TFMessage", transforms=ref), "tf2_msgs/msg/TFMessage")
+
+
+def test_scan_bytes_equal_rosbags() -> None:
+    spec = (0.0, 6.28, 6.28 / 359, 0.12, 3.5, 360)
+    enc = cdr.LaserScanCdr(*spec)
+    ranges = np.random.default_rng(1).uniform(0.12, 3.5, 360).astype(np.float32)
+    ranges[[0, 7]] = [np.inf, -np.inf]
+    for ns in NAMES:
+        ref = _t(
+            "sensor_msgs/msg/LaserScan", header=_header(12.2, f"{ns}/base_scan"), angle_min=0.0, angle_max=6.28,
+            angle_increment=6.28 / 359, time_increment=0.0, scan_time=0.0, range_min=0.12, range_max=3.5,
+            ranges=ranges, intensities=np.zeros(360, np.float32),
+        )  # fmt: skip
+        assert enc.encode(ns, 12.2, ranges) == _ref(ref, "sensor_msgs/msg/LaserScan")
+    with pytest.raises(ValueError):
+        enc.encode("a", 0.0, ranges[:10])
+
+
+def test_imu_joint_states_and_clock_bytes_equal_rosbags() -> None:
+    for ns in NAMES:
+        ref = _t(
+            "sensor_msgs/msg/Imu", header=_header(3.1, f"{ns}/imu_link"), orientation=_q(0.7),
+            orientation_covariance=np.zeros(9), angular_velocity=_v3(0, 0, 0.3),
+            angular_velocity_covariance=np.diag([4e-8] * 3).ravel(), linear_acceleration=_v3(0.1, 0.2, cdr.GRAVITY),
+            linear_acceleration_covariance=np.diag([2.89e-4] * 3).ravel(),
+        )  # fmt: skip
+        assert cdr.ImuCdr().encode(ns, 3.1, 0.7, 0.3, 0.1, 0.2) == _ref(ref, "sensor_msgs/msg/Imu")
+    joints = _t(
+        "sensor_msgs/msg/JointState", header=_header(3.1, ""), name=list(cdr.WHEEL_JOINTS),
+        position=np.array([1.5, -2.0]), velocity=np.array([3.0, 4.0]), effort=np.zeros(0),
+    )  # fmt: skip
+    assert cdr.JointStateCdr().encode(3.1, (1.5, -2.0), (3.0, 4.0)) == _ref(joints, "sensor_msgs/msg/JointState")
+    clock = _t("rosgraph_msgs/msg/Clock", clock=_t("builtin_interfaces/msg/Time", sec=3, nanosec=500_000_000))
+    assert cdr.clock_cdr(3.5) == _ref(clock, "rosgraph_msgs/msg/Clock")
+
+
+@pytest.mark.parametrize("little_endian", [True, False])
+@pytest.mark.parametrize("frame", ["", "a", "base_link", "abcdefg"])
+def test_command_decoders_read_what_rosbags_writes(little_endian: bool, frame: str) -> None:
+    tw = _t("geometry_msgs/msg/Twist", linear=_v3(0.2, 0.0, 0.0), angular=_v3(0.0, 0.0, -0.5))
+    raw = bytes(JAZZY.serialize_cdr(tw, "geometry_msgs/msg/Twist", little_endian=little_endian))
+    assert cdr.decode_twist(raw) == (0.2, -0.5)
+    stamped = _t("geometry_msgs/msg/TwistStamped", header=_header(1.0, frame), twist=tw)
+    raw = bytes(JAZZY.serialize_cdr(stamped, "geometry_msgs/msg/TwistStamped", little_endian=little_endian))
+    assert cdr.decode_twist_stamped(raw) == (0.2, -0.5)
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [b"", b"\x00\x01\x00\x00", b"\x07\x07\x00\x00" + bytes(48), b"\x00\x01\x00\x00" + bytes(20),
+     b"\x00\x01\x00\x00" + struct.pack("<6d", math.nan, 0, 0, 0, 0, 0)],
+)  # fmt: skip
+def test_bad_twists_are_refused(payload: bytes) -> None:
+    with pytest.raises(cdr.CdrError):
+        cdr.decode_twist(payload)
+
+
+def test_bad_twist_stamped_is_refused() -> None:
+    for payload in [b"\x00\x01\x00\x00" + bytes(8) + struct.pack("<I", 1_000_000), b"\x00\x01\x00\x00" + bytes(12)]:
+        with pytest.raises(cdr.CdrError):
+            cdr.decode_twist_stamped(payload)
+
+
+# -- the spawner's requests -------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("xml", "model"),
+    [
+        ((DATA / "turtlebot3_burger.sdf").read_text(), "burger"),
+        ((DATA / "turtlebot3_waffle.urdf").read_text(), "waffle"),
+        ("<sdf version='1.7'><model name='turtlebot3_waffle_pi'/></sdf>", "waffle_pi"),
+        ("<robot name='turtlebot3_burger'/>", "burger"),
+        ("<sdf version='1.7'><world name='w'><model name='waffle'/></world></sdf>", "waffle"),
+    ],
+)
+def test_models_are_recognised_from_sdf_and_urdf(xml: str, model: str) -> None:
+    assert gazebo_services.model_of(xml) == model
+
+
+@pytest.mark.parametrize(
+    ("xml", "start"),
+    [
+        ("<sdf><model", "Failed to parse XML string"),
+        ("not xml at all", "Failed to parse XML string"),
+        ("<sdf version='1.6'/>", "Failed to find a model or light on SDF"),
+        ("<sdf version='1.6'><model name='turtlebot4'/></sdf>", "fleetsim simulates the TurtleBot3"),
+        ("<robot name='pr2'/>", "fleetsim simulates the TurtleBot3"),
+        ("<a>" + "x" * (gazebo_services.MAX_XML_BYTES + 1) + "</a>", "Failed to parse XML string: the xml is larger"),
+    ],
+)
+def test_other_xml_is_refused_with_a_clear_message(xml: str, start: str) -> None:
+    with pytest.raises(gazebo_services.Refused) as e:
+        gazebo_services.model_of(xml)
+    assert str(e.value).startswith(start)
+    assert len(str(e.value)) < gazebo_services.QUOTE_CHARS + 300  # a huge xml is not echoed whole
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.5, -1.2, 3.0, -3.0])
+def test_yaw_from_quaternion(yaw: float) -> None:
+    assert gazebo_services.yaw_of(0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)) == pytest.approx(yaw)
+    assert gazebo_services.yaw_of(0.0, 0.0, 0.0, 0.0) == 0.0
