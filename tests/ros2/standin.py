@@ -67,6 +67,58 @@ module example_interfaces { module srv {
 """
 
 
+#: simulation_interfaces 1.5 (branch jazzy) in IDL: messages, then services (request; response)
+_SI_MSGS = {
+    "Result": "uint8 result; string error_message;",
+    "EntityCategory": "uint8 category;",
+    "TagsFilter": "sequence<string> tags; uint8 filter_mode;",
+    "Bounds": "uint8 type; sequence<geometry_msgs::msg::Vector3> points;",
+    "EntityFilters": "string filter; sequence<simulation_interfaces::msg::EntityCategory> categories; "
+    "simulation_interfaces::msg::TagsFilter tags; simulation_interfaces::msg::Bounds bounds;",
+    "EntityState": "std_msgs::msg::Header header; geometry_msgs::msg::Pose pose; geometry_msgs::msg::Twist twist; "
+    "geometry_msgs::msg::Accel acceleration;",
+    "SimulationState": "uint8 state;",
+    "SimulatorFeatures": "sequence<uint16> features; sequence<string> spawn_formats; string custom_info;",
+    "Spawnable": "string uri; string description; simulation_interfaces::msg::Bounds spawn_bounds;",
+}
+_R = "simulation_interfaces::msg::Result result;"
+_SI_SRVS = {
+    "SpawnEntity": ("string name; boolean allow_renaming; string uri; string resource_string; "
+                    "string entity_namespace; geometry_msgs::msg::PoseStamped initial_pose;",
+                    f"{_R} string entity_name;"),
+    "DeleteEntity": ("string entity;", _R),
+    "GetEntities": ("simulation_interfaces::msg::EntityFilters filters;", f"{_R} sequence<string> entities;"),
+    "GetEntityState": ("string entity;", f"{_R} simulation_interfaces::msg::EntityState state;"),
+    "SetEntityState": ("string entity; simulation_interfaces::msg::EntityState state;", _R),
+    "GetSimulationState": ("uint8 structure_needs_at_least_one_member;",
+                           f"simulation_interfaces::msg::SimulationState state; {_R}"),
+    "SetSimulationState": ("simulation_interfaces::msg::SimulationState state;", _R),
+    "StepSimulation": ("uint64 steps;", _R),
+    "ResetSimulation": ("uint8 scope;", _R),
+    "GetSimulatorFeatures": ("uint8 structure_needs_at_least_one_member;",
+                             "simulation_interfaces::msg::SimulatorFeatures features;"),
+    "GetSpawnables": ("sequence<string> sources;", f"{_R} sequence<simulation_interfaces::msg::Spawnable> spawnables;"),
+}  # fmt: skip
+
+
+def _simulation_idl() -> str:
+    msgs = "".join(f"struct {name} {{ {body} }};\n" for name, body in _SI_MSGS.items())
+    srvs = []
+    for name, (req, resp) in _SI_SRVS.items():
+        q = f"simulation_interfaces::srv::{name}"
+        srvs.append(
+            f"struct {name}_Request {{ {req} }}; struct {name}_Response {{ {resp} }};\n"
+            f"struct {name}_Event {{ service_msgs::msg::ServiceEventInfo info; sequence<{q}_Request, 1> request; "
+            f"sequence<{q}_Response, 1> response; }};\n"
+            f"struct {name} {{ {q}_Request request_message; {q}_Response response_message; "
+            f"{q}_Event event_message; }};\n"
+        )
+    return (
+        f"module simulation_interfaces {{ module msg {{\n{msgs}}}; }};\n"
+        f"module simulation_interfaces {{ module srv {{\n{''.join(srvs)}}}; }};\n"
+    )
+
+
 @functools.lru_cache(maxsize=1)
 def types() -> Typestore:
     """Jazzy's messages, rosidl's ServiceEventInfo (uint8 client_gid) and the services in IDL."""
@@ -80,6 +132,7 @@ def types() -> Typestore:
         )
     )
     store.register(get_types_from_idl(_IDL))
+    store.register(get_types_from_idl(_simulation_idl()))
     return store
 
 

@@ -23,7 +23,7 @@ from typing import Any
 import zenoh
 
 from protocol.control import Clock
-from simd.adapters.ros2 import cdr, graph
+from simd.adapters.ros2 import cdr, gazebo_services, graph, simulation_services
 from simd.adapters.ros2.command_intake import RosCommandIntake
 from simd.adapters.ros2.interfaces import Distro
 from simd.adapters.ros2.robot_ports import Participant, RobotPorts, RosPublisher
@@ -73,7 +73,9 @@ class Ros2Adapter:
         self.robots: dict[str, RobotPorts] = {}
         self.outbox = Outbox("ros2-out")
         self.commands = RosCommandIntake(p, self._known)
-        self.services = ServiceServer(p, node, engine, self.outbox)
+        self.services = ServiceServer(
+            p, node, engine, self.outbox, [*gazebo_services.SERVICES, *simulation_services.services()]
+        )
         engine.attach(self)
 
     def _known(self, namespace: str) -> bool:

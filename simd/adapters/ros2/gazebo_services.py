@@ -8,6 +8,7 @@ read from the pose's quaternion, and the answer carries Gazebo's words for the s
 (``Entity [x] already exists.``, ``Entity [x] does not exist``, ...), so scripts that match on
 them keep working. Whatever is wrong with a request comes back as ``success = false`` with a
 status message: rclcpp never delivers an error reply to the caller, which would wait forever.
+``xml`` is parsed by the standard library's expat, which refuses entity-expansion bombs.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from typing import Any
 
 from protocol.control import DeleteRequest, SpawnRequest
 from protocol.errors import ErrorCode, FleetError
+from simd.adapters.ros2.service_server import Call, Service
+from simd.engine.ports import Result
 
 #: The largest ``xml`` accepted (a TurtleBot3 SDF is about 15 kB).
 MAX_XML_BYTES = 1 << 20
@@ -109,3 +112,47 @@ def delete_failure(name: str, err: FleetError) -> str:
 
 def delete_success(name: str) -> str:
     return f"Successfully deleted entity [{name}]"
+
+
+def _respond(call: Call, success: bool, message: str) -> None:
+    call.respond(success=success, status_message=message)
+
+
+def spawn_entity(call: Call) -> None:
+    try:
+        request = spawn_request(call.request)
+    except Refused as e:
+        return _respond(call, False, str(e))
+    name = request.name
+
+    def then(result: Result | FleetError) -> None:
+        if isinstance(result, FleetError):
+            return _respond(call, False, spawn_failure(name, result))
+        _respond(call, True, spawn_success(name))
+
+    call.ask(request, then)
+
+
+def delete_entity(call: Call) -> None:
+    try:
+        request = delete_request(call.request)
+    except Refused as e:
+        return _respond(call, False, str(e))
+    name = request.name
+
+    def then(result: Result | FleetError) -> None:
+        if isinstance(result, FleetError):
+            return _respond(call, False, delete_failure(name, result))
+        _respond(call, True, delete_success(name))
+
+    call.ask(request, then)
+
+
+def _malformed(call: Call, message: str) -> None:
+    _respond(call, False, message)
+
+
+SERVICES = [
+    Service("/spawn_entity", "gazebo_msgs/srv/SpawnEntity", spawn_entity, _malformed),
+    Service("/delete_entity", "gazebo_msgs/srv/DeleteEntity", delete_entity, _malformed),
+]

@@ -1,8 +1,10 @@
 """ROS 2 interface types: CDR through rosbags, the names and type hashes rmw_zenoh puts in keys.
 
 rosbags' stores know the standard messages (nav_msgs, sensor_msgs, tf2_msgs, ...). The
-services the daemon serves (gazebo_msgs' SpawnEntity and DeleteEntity) are registered here
-from their definitions, written as rosidl reads them.
+services the daemon serves (gazebo_msgs' SpawnEntity and DeleteEntity, simulation_interfaces'
+standard simulator services) are registered here from their definitions, written as rosidl
+reads them (field types, names and order; comments and constants left out, as the hashes
+and CDR ignore them).
 
 A key carries a type hash (REP-2011 ``RIHS01_``) on Iron and later; Humble's rmw_zenoh puts the
 constant ``TypeHashNotSupported`` there instead. A service's hash covers what rosidl
@@ -31,6 +33,53 @@ SERVICES: dict[str, tuple[str, str]] = {
     ),
     "gazebo_msgs/srv/DeleteEntity": ("string name", "bool success\nstring status_message"),
 }
+
+#: simulation_interfaces 1.5.1 (ros-simulation/simulation_interfaces, branch jazzy; the humble and
+#: kilted branches define the same): the messages its services use, then the services
+SIMULATION_MESSAGES: dict[str, str] = {
+    "simulation_interfaces/msg/Result": "uint8 result\nstring error_message",
+    "simulation_interfaces/msg/EntityCategory": "uint8 category",
+    "simulation_interfaces/msg/TagsFilter": "string[] tags\nuint8 filter_mode",
+    "simulation_interfaces/msg/Bounds": "uint8 type\ngeometry_msgs/Vector3[] points",
+    "simulation_interfaces/msg/EntityFilters": (
+        "string filter\nsimulation_interfaces/EntityCategory[] categories\nsimulation_interfaces/TagsFilter tags\n"
+        "simulation_interfaces/Bounds bounds"
+    ),
+    "simulation_interfaces/msg/EntityState": (
+        "std_msgs/Header header\ngeometry_msgs/Pose pose\ngeometry_msgs/Twist twist\ngeometry_msgs/Accel acceleration"
+    ),
+    "simulation_interfaces/msg/SimulationState": "uint8 state",
+    "simulation_interfaces/msg/SimulatorFeatures": "uint16[] features\nstring[] spawn_formats\nstring custom_info",
+    "simulation_interfaces/msg/Spawnable": "string uri\nstring description\nsimulation_interfaces/Bounds spawn_bounds",
+}
+_RESULT = "simulation_interfaces/Result result"
+SIMULATION_SERVICES: dict[str, tuple[str, str]] = {
+    "simulation_interfaces/srv/SpawnEntity": (
+        "string name\nbool allow_renaming\nstring uri\nstring resource_string\nstring entity_namespace\n"
+        "geometry_msgs/PoseStamped initial_pose",
+        f"{_RESULT}\nstring entity_name",
+    ),
+    "simulation_interfaces/srv/DeleteEntity": ("string entity", _RESULT),
+    "simulation_interfaces/srv/GetEntities": (
+        "simulation_interfaces/EntityFilters filters",
+        f"{_RESULT}\nstring[] entities",
+    ),
+    "simulation_interfaces/srv/GetEntityState": (
+        "string entity",
+        f"{_RESULT}\nsimulation_interfaces/EntityState state",
+    ),
+    "simulation_interfaces/srv/SetEntityState": ("string entity\nsimulation_interfaces/EntityState state", _RESULT),
+    "simulation_interfaces/srv/GetSimulationState": ("", f"simulation_interfaces/SimulationState state\n{_RESULT}"),
+    "simulation_interfaces/srv/SetSimulationState": ("simulation_interfaces/SimulationState state", _RESULT),
+    "simulation_interfaces/srv/StepSimulation": ("uint64 steps", _RESULT),
+    "simulation_interfaces/srv/ResetSimulation": ("uint8 scope", _RESULT),
+    "simulation_interfaces/srv/GetSimulatorFeatures": ("", "simulation_interfaces/SimulatorFeatures features"),
+    "simulation_interfaces/srv/GetSpawnables": (
+        "string[] sources",
+        f"{_RESULT}\nsimulation_interfaces/Spawnable[] spawnables",
+    ),
+}
+
 
 #: rosidl's ServiceEventInfo, as hashed (uint8 client_gid, not rosbags' char)
 _SERVICE_EVENT_INFO = """uint8 REQUEST_SENT = 0
@@ -68,17 +117,19 @@ def service_definitions(name: str, request: str, response: str, *, with_event: b
     return out
 
 
-def _store(distro: Distro) -> Typestore:
-    return get_typestore(Stores.ROS2_HUMBLE if distro == "humble" else Stores.ROS2_JAZZY)
+def _register_ours(store: Typestore, *, with_event: bool) -> Typestore:
+    for name, text in SIMULATION_MESSAGES.items():
+        store.register(get_types_from_msg(text, name))
+    for name, (req, resp) in {**SERVICES, **SIMULATION_SERVICES}.items():
+        store.register(service_definitions(name, req, resp, with_event=with_event))
+    return store
 
 
 @functools.lru_cache(maxsize=4)
 def typestore(distro: Distro) -> Typestore:
     """The store that serializes and deserializes: the distro's messages and our services."""
-    store = _store(distro)
-    for name, (req, resp) in SERVICES.items():
-        store.register(service_definitions(name, req, resp, with_event=False))
-    return store
+    store = get_typestore(Stores.ROS2_HUMBLE if distro == "humble" else Stores.ROS2_JAZZY)
+    return _register_ours(store, with_event=False)
 
 
 @functools.lru_cache(maxsize=1)
@@ -87,9 +138,7 @@ def _hashing_store() -> Typestore:
     store = get_typestore(Stores.EMPTY)
     store.register({k: v for k, v in base.fielddefs.items() if k != "service_msgs/msg/ServiceEventInfo"})
     store.register(get_types_from_msg(_SERVICE_EVENT_INFO, "service_msgs/msg/ServiceEventInfo"))
-    for name, (req, resp) in SERVICES.items():
-        store.register(service_definitions(name, req, resp, with_event=True))
-    return store
+    return _register_ours(store, with_event=True)
 
 
 def rihs01(typename: str, store: Typestore | None = None) -> str:

@@ -4,11 +4,14 @@ A ROS client ``get``s the service's key with the request's CDR and a 33-byte att
 (its sequence number and GID); the server replies on the same key with the response's CDR and
 an attachment carrying the same sequence number and GID, by which rclcpp matches the answer
 to the call. rclcpp never hands an error reply to the caller, so every refusal is an ordinary
-response (``success = false`` and a message). An ``SS`` liveliness token makes the service
-exist for ``ros2 service list`` and for a client's ``wait_for_service``.
+response (``success = false``, or a ``Result`` code, and a message). An ``SS`` liveliness token
+makes the service exist for ``ros2 service list`` and for a client's ``wait_for_service``.
 
 Like the fleet protocol's actions, a service acts only on its exact key: a wildcard ``get``
 (somebody looking around) gets no answer and changes nothing.
+
+What a service does lives in its handler (gazebo_services.py, simulation_services.py): it gets
+a :class:`Call` with the decoded request, asks the engine through it, and answers once.
 """
 
 from __future__ import annotations
@@ -18,11 +21,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
 import zenoh
+from rosbags.interfaces import Nodetype
+from rosbags.typesys.store import Typestore
 
 from protocol.control import Request
 from protocol.errors import FleetError
-from simd.adapters.ros2 import gazebo_services as gz
 from simd.adapters.ros2 import graph
 from simd.adapters.ros2.interfaces import typestore
 from simd.adapters.ros2.robot_ports import Participant
@@ -34,45 +39,111 @@ from simd.engine.ports import Result
 log = logging.getLogger(__name__)
 
 #: The largest request payload decoded (the xml of a SpawnEntity is the big one).
-MAX_REQUEST_BYTES = gz.MAX_XML_BYTES + 4096
+MAX_REQUEST_BYTES = (1 << 20) + 4096  # a SpawnEntity's xml may have 1 MiB (gazebo_services.MAX_XML_BYTES)
+
+Answer = Callable[[Result | FleetError], None]
+
+
+class Call:
+    """One service call on its way: the request, the engine to ask, the one answer to give."""
+
+    def __init__(self, name: str, request: Any, response_type: str, store: Typestore,
+                 engine: Engine, send: Callable[[bytes], None], outbox: Outbox) -> None:  # fmt: skip
+        self.name = name
+        self.request = request
+        self._response_type = response_type
+        self._store = store
+        self._engine = engine
+        self._send = send
+        self._outbox = outbox
+        self._answered = False
+
+    def make(self, typename: str, **fields: Any) -> Any:
+        """A message of ``typename`` (for the nested parts of a response); fields not given are zero."""
+        return zero_message(self._store, typename, fields)
+
+    @property
+    def response_fields(self) -> list[str]:
+        return [name for name, _ in self._store.fielddefs[self._response_type][1]]
+
+    def respond(self, **fields: Any) -> None:
+        """Answer with a response of these fields, the others zero (any thread; sent from the
+        adapter's thread). Only the first answer counts."""
+        if self._answered:
+            return
+        self._answered = True
+        response = zero_message(self._store, self._response_type, fields)
+        payload = bytes(self._store.serialize_cdr(response, self._response_type))
+        self._outbox.put(lambda: self._send(payload))
+
+    def ask(self, request: Request, then: Answer) -> None:
+        """Submit ``request`` to the engine; ``then`` gets its result or error (busy included)."""
+        try:
+            self._engine.submit(request, then)
+        except FleetError as e:
+            then(e)
+
+
+Handler = Callable[[Call], None]
+
+_NUMPY_TYPES = {
+    "bool": np.bool_, "byte": np.uint8, "char": np.uint8, "int8": np.int8, "uint8": np.uint8,
+    "int16": np.int16, "uint16": np.uint16, "int32": np.int32, "uint32": np.uint32,
+    "int64": np.int64, "uint64": np.uint64, "float32": np.float32, "float64": np.float64,
+}  # fmt: skip
+
+
+def zero_message(store: Typestore, typename: str, given: dict[str, Any] | None = None) -> Any:
+    """A message of ``typename`` with ``given`` fields and every other one zero, empty or false
+    (rosbags' message classes have no defaults)."""
+    given = given or {}
+    fields = {name: given[name] if name in given else _zero(store, node, desc)
+              for name, (node, desc) in store.fielddefs[typename][1]}  # fmt: skip
+    return store.types[typename](**fields)
+
+
+def _zero(store: Typestore, node: Nodetype, desc: Any) -> Any:
+    if node == Nodetype.BASE:
+        kind = desc[0]
+        return "" if kind == "string" else False if kind == "bool" else 0.0 if kind.startswith("float") else 0
+    if node == Nodetype.NAME:
+        return zero_message(store, desc)
+    (inner, inner_desc), length = desc
+    primitive = inner == Nodetype.BASE and inner_desc[0] != "string"
+    if node == Nodetype.ARRAY:
+        if primitive:
+            return np.zeros(length, dtype=_NUMPY_TYPES[inner_desc[0]])
+        return [_zero(store, inner, inner_desc) for _ in range(length)]
+    return np.zeros(0, dtype=_NUMPY_TYPES[inner_desc[0]]) if primitive else []
 
 
 @dataclass(frozen=True)
 class Service:
-    """One service: how a decoded request becomes the engine's, and the answers' words."""
-
     name: str  # /spawn_entity
     typename: str  # gazebo_msgs/srv/SpawnEntity
-    to_request: Callable[[Any], Request]
-    ok: Callable[[str], str]
-    failed: Callable[[str, FleetError], str]
-
-
-GAZEBO_SERVICES = (
-    Service("/spawn_entity", "gazebo_msgs/srv/SpawnEntity", gz.spawn_request, gz.spawn_success, gz.spawn_failure),
-    Service("/delete_entity", "gazebo_msgs/srv/DeleteEntity", gz.delete_request, gz.delete_success,
-            gz.delete_failure),
-)  # fmt: skip
+    handler: Handler
+    #: the response to a request that cannot be decoded, given the message
+    malformed: Callable[[Call, str], None]
 
 
 class ServiceServer:
-    """Serves :data:`GAZEBO_SERVICES` through the engine; replies leave through the outbox."""
+    """Serves services through the engine; replies leave through the outbox."""
 
-    def __init__(self, p: Participant, node: graph.Node, engine: Engine, outbox: Outbox) -> None:
+    def __init__(self, p: Participant, node: graph.Node, engine: Engine, outbox: Outbox,
+                 services: list[Service]) -> None:  # fmt: skip
         self.engine = engine
         self.outbox = outbox
         self._store = typestore(p.distro)
         self._entities: list[Any] = []
-        self.refused = 0
-        for service in GAZEBO_SERVICES:
+        self.malformed = 0
+        for service in services:
             topic = p.topic(service.name, service.typename)
             token = node.entity_token(p.next_id(), graph.Kind.SERVICE, topic, graph.SERVICE_QOS)
-            gid = graph.gid(token)
-            handler = self._handler(service, topic.key, gid)
+            handler = self._on_query(service, topic.key, graph.gid(token))
             self._entities.append(p.session.declare_queryable(topic.key, handler, complete=True))
             self._entities.append(p.session.liveliness().declare_token(token))
 
-    def _handler(self, service: Service, key: str, server_gid: bytes) -> Callable[[zenoh.Query], None]:
+    def _on_query(self, service: Service, key: str, server_gid: bytes) -> Callable[[zenoh.Query], None]:
         request_type = f"{service.typename}_Request"
         response_type = f"{service.typename}_Response"
         store = self._store
@@ -86,42 +157,34 @@ class ServiceServer:
             except ValueError:
                 sequence, client_gid = 0, server_gid  # not rclcpp (zenoh's CLI?): answer all the same
 
-            def respond(success: bool, message: str) -> None:
-                response = store.types[response_type](success=success, status_message=message)
-                payload = bytes(store.serialize_cdr(response, response_type))
+            def send(payload: bytes) -> None:
                 try:
                     query.reply(key, payload, attachment=graph.attachment(sequence, client_gid))
                 finally:
                     query.drop()
 
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            try:
-                if len(payload) > MAX_REQUEST_BYTES:
-                    raise gz.Refused(f"request of {len(payload)} bytes is larger than {MAX_REQUEST_BYTES}")
-                try:
-                    msg: Any = store.deserialize_cdr(payload, request_type)
-                except Exception as e:  # rosbags raises several kinds for bytes that are not the type
-                    raise gz.Refused(f"malformed {request_type}: {type(e).__name__}: {e}") from None
-                name = str(msg.name)
-                request = service.to_request(msg)
-            except gz.Refused as e:
-                self.refused += 1
-                log.info("%s refused: %s", service.name, e)
-                respond(False, str(e))
+            call = Call(service.name, None, response_type, store, self.engine, send, self.outbox)
+            if len(payload) > MAX_REQUEST_BYTES:
+                self._malformed(service, call, f"request of {len(payload)} bytes is larger than {MAX_REQUEST_BYTES}")
                 return
-
-            def on_result(result: Result | FleetError) -> None:
-                if isinstance(result, FleetError):
-                    self.outbox.put(lambda: respond(False, service.failed(name, result)))
-                else:
-                    self.outbox.put(lambda: respond(True, service.ok(name)))
-
             try:
-                self.engine.submit(request, on_result)
-            except FleetError as e:  # busy
-                respond(False, service.failed(name, e))
+                call.request = store.deserialize_cdr(payload, request_type)
+            except Exception as e:  # rosbags raises several kinds for bytes that are not the type
+                self._malformed(service, call, f"malformed {request_type}: {type(e).__name__}: {e}")
+                return
+            try:
+                service.handler(call)
+            except Exception:  # our bug: the caller still gets an answer, the daemon goes on
+                log.exception("%s failed", service.name)
+                service.malformed(call, "internal error in fleetsim (see the daemon's log)")
 
         return on_query
+
+    def _malformed(self, service: Service, call: Call, message: str) -> None:
+        self.malformed += 1
+        log.info("%s refused: %s", service.name, message)
+        service.malformed(call, message)
 
     def close(self) -> None:
         undeclare_all(self._entities)
