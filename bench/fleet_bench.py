@@ -47,9 +47,9 @@ from bench.measure import (
     spawn_single,
 )
 from bench.numbers import fmt_f, fmt_ms, fmt_pct
-from bench.processes import DaemonProc, raise_exit, start_daemon
+from bench.processes import DaemonProc, free_port, raise_exit, start_daemon
 from bench.progress import Progress
-from bench.report import machine_info, machine_line, results_markdown, write_outputs
+from bench.report import TOPIC_LABELS, machine_info, machine_line, results_markdown, write_outputs
 from bench.subscriber import Subscriber, subscriber_main
 from bench.wire import PREFIX
 
@@ -66,8 +66,8 @@ def run_size(
     """One fleet size, start to finish. The run's record is appended to ``sink`` first, so that
     whatever was measured before a failure or a Ctrl-C is reported. ``topics`` is what the
     subscriber process follows: every robot's own topics, or the fleet topics."""
-    mode = ("rtf0" if rtf == 0 else "rtf1") + ("-fleet" if topics == "fleet" else "")
-    label = f"[N={n}{' rtf 0' if rtf == 0 else ''}{' fleet topics' if topics == 'fleet' else ''}]"
+    mode = ("rtf0" if rtf == 0 else "rtf1") + ("" if topics == "robots" else f"-{topics}")
+    label = f"[N={n}{' rtf 0' if rtf == 0 else ''}{TOPIC_LABELS[topics].replace(',', '')}]"
     run: dict[str, Any] = {
         "n": n, "mode": mode, "target_rtf": rtf, "topics": topics, "status": "ok", "error": None,
     }  # fmt: skip
@@ -87,9 +87,14 @@ def run_size(
             }
             # at 20x, 10 Hz commands are 2 s of sim time apart: keep the last command (no watchdog)
             extra = (["--cmd-timeout", "0"] if rtf == 0 else []) + s.simd_args
+            ros_endpoint = f"tcp/127.0.0.1:{free_port()}"
+            if topics in ("ros", "fleet-ros2"):  # the daemon serves ROS 2 as its own router
+                extra += ["--ros2", "--ros-serve-router", "--ros-router", ros_endpoint]
             daemon = start_daemon(world_path, rtf, n + s.extra_spawns + 16, tmp, extra)
             stack.callback(daemon.stop)
-            sub = Subscriber(daemon.endpoint, PROBE, tmp / f"subscriber-{n}-{mode}.log", topics)
+            sub_endpoint = ros_endpoint if topics == "ros" else daemon.endpoint
+            sub_topics = "fleet" if topics == "fleet-ros2" else topics
+            sub = Subscriber(sub_endpoint, PROBE, tmp / f"subscriber-{n}-{mode}.log", sub_topics)
             stack.callback(sub.stop)
             progress.update(f"{label} starting simd and the subscriber", force=True)
             t0 = time.monotonic()
@@ -226,9 +231,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--paced-topics",
-        choices=("robots", "fleet"),
-        default="robots",
-        help="what the subscriber follows in the real-time runs of --sizes (default: %(default)s)",
+        nargs="+",
+        choices=tuple(TOPIC_LABELS),
+        default=["robots"],
+        help="what the subscriber follows in the real-time runs of --sizes, each size run once per kind, "
+        "interleaved: robots (every robot's fleet topics), fleet (the fleet topics), ros (simd --ros2; every "
+        "robot's ROS odom and scan, and /tf), fleet-ros2 (the fleet topics of a daemon with --ros2 that no ROS "
+        "tool reads) (default: robots)",
     )
     p.add_argument("--spawn-concurrency", type=int, default=16, help="spawn requests in flight (default 16)")
     p.add_argument("--latency-reps", type=int, default=None, help="cmd_vel→odom repetitions (default 20; quick 5)")
@@ -245,7 +254,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--role", default="bench", choices=("bench", "subscriber"), help=argparse.SUPPRESS)
     p.add_argument("--endpoint", help=argparse.SUPPRESS)
     p.add_argument("--probe", default=PROBE, help=argparse.SUPPRESS)
-    p.add_argument("--topics", default="robots", choices=("robots", "fleet"), help=argparse.SUPPRESS)
+    p.add_argument("--topics", default="robots", choices=("robots", "fleet", "ros"), help=argparse.SUPPRESS)
     return p
 
 
@@ -266,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         seed=args.seed,
         simd_args=shlex.split(args.simd_args),
     )
-    plan: list[tuple[int, float, str]] = [(n, 1.0, args.paced_topics) for n in args.sizes]
+    plan: list[tuple[int, float, str]] = [(n, 1.0, t) for n in args.sizes for t in dict.fromkeys(args.paced_topics)]
     if not args.no_fast:
         fast_n = min(args.fast_size, max(args.sizes)) if args.quick else args.fast_size
         repeats = args.fast_runs if args.fast_runs is not None else (1 if args.quick else 3)
@@ -286,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     print(f"machine: {machine_line(machine)}")
     print(f"command: {res['command']}")
-    steps = [f"N={n}" + (" rtf 0" if r == 0 else "") + (" fleet topics" if t == "fleet" else "") for n, r, t in plan]
+    steps = [f"N={n}" + (" rtf 0" if r == 0 else "") + TOPIC_LABELS[t].replace(",", "") for n, r, t in plan]
     print(f"plan: {', '.join(steps)}; {s.duration:g} s measured per size", flush=True)
     progress = Progress()
     code = 0

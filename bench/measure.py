@@ -256,6 +256,12 @@ def measure_window(ctx: Context, duration: float, progress: Progress) -> dict[st
         "odom_fraction_by_decile": _deciles(odom_d, ticks),
         "scan_fraction_by_decile": _deciles(scan_d, ticks / SCAN_EVERY),
         "bad_payloads": s1["bad"] - s0["bad"],
+        # /tf (the ROS subscriber): one message a tick with every robot's transform
+        "tf_messages": s1["tf"][0] - s0["tf"][0],
+        "tf_fraction": (s1["tf"][0] - s0["tf"][0]) / ticks if ticks and s1["tf"][0] else None,
+        "tf_transforms_per_message": (
+            (s1["tf"][1] - s0["tf"][1]) / (s1["tf"][0] - s0["tf"][0]) if s1["tf"][0] > s0["tf"][0] else None
+        ),
         "daemon_cpu_pct": 100 * (cpu1 - cpu0) / wall if cpu0 is not None and cpu1 is not None else None,
         "subscriber_cpu_pct": 100 * (scpu1 - scpu0) / wall if scpu0 is not None and scpu1 is not None else None,
         "bench_cpu_pct": 100 * (me1 - me0) / wall,

@@ -214,9 +214,60 @@ def _missed(la: dict[str, Any]) -> str:
     return cell
 
 
+#: what the subscriber follows, and how the daemon runs: per-robot fleet topics; the fleet
+#: topics; ROS 2 (--ros2, a ROS subscriber on every robot's odom and scan and on /tf); the fleet
+#: topics from a daemon with --ros2 that nobody reads over ROS (what ROS output costs idle)
+TOPIC_LABELS = {"robots": "", "fleet": ", fleet topics", "ros": ", ROS 2", "fleet-ros2": ", fleet topics, --ros2 idle"}
+
+
 def _target(r: dict[str, Any]) -> str:
-    fleet = ", fleet topics" if r.get("topics") == "fleet" else ""
-    return ("max (0)" if r["target_rtf"] == 0 else f"{r['target_rtf']:g}") + fleet
+    return ("max (0)" if r["target_rtf"] == 0 else f"{r['target_rtf']:g}") + TOPIC_LABELS[r.get("topics", "robots")]
+
+
+def _cpu_ratio(runs: list[dict[str, Any]], n: int, mode: str, baseline: str) -> tuple[float | None, float | None]:
+    """(daemon CPU of ``mode``, its ratio to ``baseline``) at size ``n``, from the median run of each."""
+
+    def cpu(m: str) -> float | None:
+        vals = sorted(
+            r["measure"]["daemon_cpu_pct"] for r in runs
+            if r["n"] == n and r["mode"] == m and (r.get("measure") or {}).get("daemon_cpu_pct") is not None
+        )  # fmt: skip
+        return vals[len(vals) // 2] if vals else None
+
+    a, b = cpu(mode), cpu(baseline)
+    return a, (a / b if a is not None and b else None)
+
+
+def ros_markdown(runs: list[dict[str, Any]]) -> list[str]:
+    """What ROS 2 output costs: a ROS subscriber on every robot against the same fleet's per-robot
+    fleet topics, and --ros2 with nobody reading it against the fleet topics without it."""
+    sizes = sorted({r["n"] for r in runs if r.get("topics") in ("ros", "fleet-ros2")})
+    if not sizes:
+        return []
+    lines = [
+        "",
+        "## ROS 2 output (simd --ros2)",
+        "",
+        "*ROS 2*: a subscriber on every robot's /<ns>/odom and /<ns>/scan and on /tf over rmw_zenoh's keys; "
+        "its daemon CPU against the same size with a subscriber on every robot's fleet topics (*fleet-only "
+        "output*). *Idle*: --ros2 on and no ROS subscriber, against the same fleet-topic subscriber without "
+        "--ros2. Ratios of medians when a size ran more than once.",
+        "",
+        "| N | RTF (median) | odom / scans / /tf delivered | daemon CPU, ROS 2 | × fleet-only output "
+        "| daemon CPU, --ros2 idle | × without --ros2 |",
+        "|---:|---|---|---:|---:|---:|---:|",
+    ]
+    for n in sizes:
+        ros = [r for r in runs if r["n"] == n and r["mode"] == "rtf1-ros"]
+        m = (ros[len(ros) // 2].get("measure") or {}) if ros else {}
+        cpu, ratio = _cpu_ratio(runs, n, "rtf1-ros", "rtf1")
+        idle, idle_ratio = _cpu_ratio(runs, n, "rtf1-fleet-ros2", "rtf1-fleet")
+        lines.append(
+            f"| {n} | {fmt_f(m.get('rtf_median'))} | {fmt_f(m.get('odom_fraction'), 3)} / "
+            f"{fmt_f(m.get('scan_fraction'), 3)} / {fmt_f(m.get('tf_fraction'), 3)} | {fmt_pct(cpu)} "
+            f"| {fmt_f(ratio)} | {fmt_pct(idle)} | {fmt_f(idle_ratio)} |"
+        )
+    return lines
 
 
 def results_markdown(res: dict[str, Any]) -> str:
@@ -299,7 +350,7 @@ def results_markdown(res: dict[str, Any]) -> str:
         la = r.get("latency") or {}
         lines.append(
             f"| {r['n']}{' (rtf 0' if r['target_rtf'] == 0 else ''}"
-            f"{', fleet topics' if r.get('topics') == 'fleet' else ''}{')' if r['target_rtf'] == 0 else ''} "
+            f"{TOPIC_LABELS[r.get('topics', 'robots')]}{')' if r['target_rtf'] == 0 else ''} "
             f"| {sp.get('spawned', '–')}/{r['n']}, {fmt_f(sp.get('total_s'))} "
             f"| {fmt_ms(sp.get('p50_s'))} / {fmt_ms(sp.get('p99_s'))} "
             f"| {fmt_ms(ss.get('spawn_p50_s'))} / {fmt_ms(ss.get('spawn_p99_s'))} "
@@ -307,6 +358,7 @@ def results_markdown(res: dict[str, Any]) -> str:
             f"| {fmt_ms(la.get('p50_s'))} / {fmt_ms(la.get('p95_s'))} / {fmt_ms(la.get('max_s'))} "
             f"| {_missed(la)} |"
         )
+    lines += ros_markdown(runs)
     lines += ["", "## Issue 5 targets", "", "| target | measured | met |", "|---|---|---|"]
     for t in res.get("targets", []):
         lines.append(f"| {t['target']} | {t['measured']} | {_ok(t['met'])} |")

@@ -26,9 +26,12 @@ from bench.wire import ODOM_MIN_BYTES, PREFIX, SCAN_MIN_BYTES, zenoh_config
 def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
     """A separate process: a zenoh client counting every odom and scan per key.
 
-    ``topics`` is ``robots`` (every robot's own ``P/<ns>/odom`` and ``P/<ns>/scan``) or
+    ``topics`` is ``robots`` (every robot's own ``P/<ns>/odom`` and ``P/<ns>/scan``),
     ``fleet`` (``P/odometry`` and ``P/scans``, one message a tick for the whole fleet, whose rows
-    are counted under the same per-robot keys).
+    are counted under the same per-robot keys) or ``ros`` (every robot's ``/<ns>/odom`` and
+    ``/<ns>/scan`` and the fleet's ``/tf`` as ROS 2 sees them over rmw_zenoh, on ``endpoint``:
+    the daemon's ROS session; counted under the same keys, and ``/tf``'s transforms under
+    ``tf``).
 
     Prints ``READY``; ``COUNT t odom scan bad keys_odom keys_scan`` every second;
     ``TWIST t moving`` when the probe robot's odometry twist turns non-zero or back to zero;
@@ -50,18 +53,22 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
 
     odom: dict[str, int] = {}
     scan: dict[str, int] = {}
+    tf = [0, 0]  # /tf messages, transforms in them
     bad = [0]
 
     dec = msgspec.msgpack.Decoder(Odometry)
     moving: list[bool | None] = [None]
 
-    def on_probe(sample: zenoh.Sample) -> None:
+    def probe_twist(v: float, w: float) -> None:
         t = time.monotonic()  # CLOCK_MONOTONIC is system-wide: comparable with the driver's
-        tw = dec.decode(sample.payload.to_bytes()).twist.twist
-        now = abs(tw.linear.x) > 1e-9 or abs(tw.angular.z) > 1e-9
+        now = abs(v) > 1e-9 or abs(w) > 1e-9
         if now != moving[0]:
             moving[0] = now
             emit(f"TWIST {t:.6f} {int(now)}")
+
+    def on_probe(sample: zenoh.Sample) -> None:
+        tw = dec.decode(sample.payload.to_bytes()).twist.twist
+        probe_twist(tw.linear.x, tw.angular.z)
 
     stop = threading.Event()
     session = zenoh.open(zenoh_config(endpoint, 30.0))
@@ -122,7 +129,9 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
                 k = scan_keys.get(ns) or scan_keys.setdefault(ns, f"{PREFIX}/{ns}/scan")
                 scan[k] = scan.get(k, 0) + 1
 
-        if topics == "fleet":
+        if topics == "ros":
+            _subscribe_ros(session, probe, odom, scan, tf, bad, on_probe_twist=lambda v, w: probe_twist(v, w))
+        elif topics == "fleet":
             session.declare_subscriber(f"{PREFIX}/odometry", on_fleet_odom)
             session.declare_subscriber(f"{PREFIX}/scans", on_fleet_scan)
         else:
@@ -143,7 +152,7 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
             if not parts:
                 continue
             if parts[0] == "SNAP":
-                snap = {"t": time.monotonic(), "odom": dict(odom), "scan": dict(scan), "bad": bad[0]}
+                snap = {"t": time.monotonic(), "odom": dict(odom), "scan": dict(scan), "tf": list(tf), "bad": bad[0]}
                 emit(f"SNAP {parts[1]} {json.dumps(snap, separators=(',', ':'))}")
             elif parts[0] == "QUIT":
                 break
@@ -151,6 +160,54 @@ def subscriber_main(endpoint: str, probe: str, topics: str = "robots") -> int:
         stop.set()
         session.close()
     return 0
+
+
+def _subscribe_ros(session: Any, probe: str, odom: dict[str, int], scan: dict[str, int], tf: list[int],
+                   bad: list[int], on_probe_twist: Any) -> None:  # fmt: skip
+    """Subscribe as ROS tools would, with wildcards over the robots (a ROS subscriber per
+    robot and topic asks the daemon for exactly the same messages)."""
+    import struct
+
+    from simd.adapters.ros2.graph import Topic
+
+    def key(name: str, typename: str) -> str:
+        return Topic(name, typename, 0, "jazzy").key
+
+    odom_keys: dict[str, str] = {}
+    scan_keys: dict[str, str] = {}
+    probe_odom = key(f"/{probe}/odom", "nav_msgs/msg/Odometry")
+
+    def on_odom(sample: Any) -> None:
+        k = str(sample.key_expr)
+        ns = k.split("/", 2)[1]
+        name = odom_keys.get(ns) or odom_keys.setdefault(ns, f"{PREFIX}/{ns}/odom")
+        odom[name] = odom.get(name, 0) + 1
+        payload = sample.payload.to_bytes()
+        if len(payload) < ODOM_MIN_BYTES or sample.attachment is None:
+            bad[0] += 1
+        elif k == probe_odom:  # twist.linear.x and angular.z: the last 6 doubles before the covariance
+            end = len(payload) - 288
+            v, *_, w = struct.unpack_from("<6d", payload, end - 48)
+            on_probe_twist(v, w)
+
+    def on_scan(sample: Any) -> None:
+        ns = str(sample.key_expr).split("/", 2)[1]
+        name = scan_keys.get(ns) or scan_keys.setdefault(ns, f"{PREFIX}/{ns}/scan")
+        scan[name] = scan.get(name, 0) + 1
+        if len(sample.payload) < SCAN_MIN_BYTES or sample.attachment is None:
+            bad[0] += 1
+
+    def on_tf(sample: Any) -> None:
+        payload = sample.payload.to_bytes()
+        if len(payload) < 8 or sample.attachment is None:
+            bad[0] += 1
+            return
+        tf[0] += 1
+        tf[1] += struct.unpack_from("<I", payload, 4)[0]  # the transforms in the message
+
+    session.declare_subscriber(key("/*/odom", "nav_msgs/msg/Odometry"), on_odom)
+    session.declare_subscriber(key("/*/scan", "sensor_msgs/msg/LaserScan"), on_scan)
+    session.declare_subscriber(key("/tf", "tf2_msgs/msg/TFMessage"), on_tf)
 
 
 class Subscriber:

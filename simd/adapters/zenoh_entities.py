@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import zenoh
@@ -17,23 +18,55 @@ def undeclare_all(entities: list[Any]) -> None:
     entities.clear()
 
 
+class Tally:
+    """How many of a group of :class:`Interest` s match right now: one read tells a tick
+    whether any robot's topic has a subscriber at all."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self.count = 0
+
+    def add(self, delta: int) -> None:
+        with self._lock:
+            self.count += delta
+
+    def __bool__(self) -> bool:
+        return self.count > 0
+
+
 class Interest:
     """Whether some subscriber matches a publisher, kept current by zenoh's matching listener.
 
     Asking zenoh every tick costs little CPU but hands the GIL back and forth between the
     adapter's thread and the simulation's at every call; the listener's callback runs only
-    when somebody arrives or leaves, and a tick just reads a bool.
+    when somebody arrives or leaves, and a tick just reads a bool. A :class:`Tally` given
+    counts it while it matches.
     """
 
-    def __init__(self, pub: zenoh.Publisher) -> None:
-        self._listener = pub.declare_matching_listener(self._changed)  # first, so no change is missed
-        self.matching = bool(pub.matching_status.matching)  # type: ignore[attr-defined]  # the stub says bool
+    def __init__(self, pub: zenoh.Publisher, tally: Tally | None = None) -> None:
+        self._lock = threading.Lock()
+        self._tally = tally
+        self.matching = False
+        # on zenoh's own thread (it only sets a bool): a Python callback would get a thread of its
+        # own, and the ROS adapter has four listeners per robot
+        handler = zenoh.handlers.Callback(self._changed, None, indirect=False)
+        self._listener = pub.declare_matching_listener(handler)  # first, so no change is missed
+        self._set(bool(pub.matching_status.matching))  # type: ignore[attr-defined]  # the stub says bool
 
     def _changed(self, status: zenoh.MatchingStatus) -> None:
-        self.matching = bool(status.matching)
+        self._set(bool(status.matching))
+
+    def _set(self, matching: bool) -> None:
+        with self._lock:
+            if matching == self.matching:
+                return
+            self.matching = matching
+            if self._tally is not None:
+                self._tally.add(1 if matching else -1)
 
     def __bool__(self) -> bool:
         return self.matching
 
     def undeclare(self) -> None:
         self._listener.undeclare()
+        self._set(False)

@@ -104,7 +104,7 @@ def test_urdf_waffle_and_yaw_from_the_quaternion(ros: RosDomain) -> None:
 def test_delete_entity(ros: RosDomain) -> None:
     tool = ros.tool
     assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
-    tool.wait_graph(lambda g: any(e.node_fqn == "/TB3_1/turtlebot3_diff_drive" for e in g))
+    tool.wait_graph(lambda g: any(e.node_fqn == "/TB3_1/turtlebot3" for e in g))
     r = tool.call(*DELETE, msg("gazebo_msgs/srv/DeleteEntity_Request", name="burger_1"))
     assert (r.success, r.status_message) == (True, "Successfully deleted entity [burger_1]")
     again = tool.call(*DELETE, msg("gazebo_msgs/srv/DeleteEntity_Request", name="burger_1"))
@@ -117,11 +117,10 @@ def test_delete_entity(ros: RosDomain) -> None:
 def test_graph_names_nodes_topics_and_services_as_gazebo(ros: RosDomain) -> None:
     tool = ros.tool
     assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
-    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind == "NN" for e in g) == 5)
+    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind != "NN" for e in g) == 7)
     nodes = {e.node_fqn for e in g if e.kind == "NN"}
-    robot_nodes = ["turtlebot3_diff_drive", "turtlebot3_laserscan", "turtlebot3_imu", "turtlebot3_joint_state",
-                   "robot_state_publisher"]  # fmt: skip
-    assert nodes == {"/fleetsim", *(f"/TB3_1/{n}" for n in robot_nodes)}
+    assert nodes == {"/fleetsim", "/TB3_1/turtlebot3"}
+    assert {e.node_fqn for e in g if e.namespace == "/TB3_1"} == {"/TB3_1/turtlebot3"}
     pubs = {(e.topic, e.type): e for e in g if e.kind == "MP"}
     expected = {
         "/TB3_1/odom": "nav_msgs/msg/Odometry",

@@ -141,22 +141,29 @@ def _ref(message: object, typename: str) -> bytes:
 NAMES = ["tb3_0", "a", "robot_with_a_long_name_17", "ab"]  # strings of every length mod 4
 
 
-def _snapshot() -> TickSnapshot:
-    rng = np.random.default_rng(3)
+def _snapshot(tick: int = 371) -> TickSnapshot:
+    rng = np.random.default_rng(tick)
     n = len(NAMES)
     return TickSnapshot(
-        tick=371, time=371 / 30, namespaces=NAMES, x=rng.normal(size=n), y=rng.normal(size=n),
+        tick=tick, time=tick / 30, namespaces=NAMES, x=rng.normal(size=n), y=rng.normal(size=n),
         yaw=rng.uniform(-3, 3, n), linear_x=rng.normal(size=n), linear_y=rng.normal(size=n) * 0.01,
         angular_z=rng.normal(size=n), scan_namespaces=[], scan_rows=np.zeros((0, 360), np.float32),
     )  # fmt: skip
 
 
-def test_odometry_bytes_equal_rosbags() -> None:
-    snap = _snapshot()
+@pytest.mark.parametrize("ticks_rows", [[(371, [3, 0, 2, 1])], [(5, [0, 1, 2, 3]), (6, [0, 1, 2, 3]), (7, [2, 0])]])
+def test_odometry_bytes_equal_rosbags(ticks_rows: list[tuple[int, list[int]]]) -> None:
+    """Laid out once and reused while the robots stay the same, laid out again when they change."""
     diag = (1e-5, 1e-5, 1e12, 1e12, 1e12, 1e-3)
+    enc = cdr.OdometryCdr(diag)
+    for tick, rows in ticks_rows:
+        _check_odometry(enc, _snapshot(tick), rows, diag)
+
+
+def _check_odometry(enc: cdr.OdometryCdr, snap: TickSnapshot, rows: list[int], diag: tuple[float, ...]) -> None:
     cov = np.diag(diag).ravel()
-    out = cdr.OdometryCdr(diag).encode(snap, [3, 0, 2, 1])
-    for payload, i in zip(out, [3, 0, 2, 1], strict=True):
+    out = enc.encode(snap, rows)
+    for payload, i in zip(out, rows, strict=True):
         ns = NAMES[i]
         ref = _t(
             "nav_msgs/msg/Odometry",
@@ -174,8 +181,12 @@ def test_odometry_bytes_equal_rosbags() -> None:
 
 
 def test_tf_bytes_equal_rosbags() -> None:
-    snap = _snapshot()
-    rows = [2, 0, 3]
+    enc = cdr.TfCdr()
+    for tick, rows in [(1, [2, 0, 3]), (2, [2, 0, 3]), (3, [0, 1, 2, 3]), (4, [1])]:
+        _check_tf(enc, _snapshot(tick), rows)
+
+
+def _check_tf(enc: cdr.TfCdr, snap: TickSnapshot, rows: list[int]) -> None:
     transforms = [
         _t("geometry_msgs/msg/TransformStamped", header=_header(snap.time, f"{NAMES[i]}/odom"),
            child_frame_id=f"{NAMES[i]}/base_footprint",
@@ -183,7 +194,7 @@ def test_tf_bytes_equal_rosbags() -> None:
                         rotation=_q(snap.yaw[i])))
         for i in rows
     ]  # fmt: skip
-    assert cdr.TfCdr().encode(snap, rows) == _ref(_t("tf2_msgs/msg/TFMessage", transforms=transforms),
+    assert enc.encode(snap, rows) == _ref(_t("tf2_msgs/msg/TFMessage", transforms=transforms),
                                                   "tf2_msgs/msg/TFMessage")  # fmt: skip
 
 

@@ -15,6 +15,7 @@ engine's order, and builds a message only while somebody subscribes to its topic
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from functools import partial
@@ -132,7 +133,7 @@ class Ros2Adapter:
     def _reset(self) -> None:
         for ports in self.robots.values():
             ports.wheel_angles = (0.0, 0.0)
-            ports.last_linear = 0.0
+            ports.last_linear = None
 
     def _publish_clock(self, t: float) -> None:
         if self.clock_pub.wanted:
@@ -140,43 +141,55 @@ class Ros2Adapter:
 
     def _publish_tick(self, snap: TickSnapshot) -> None:
         self._publish_clock(snap.time)
+        p = self.participant
+        tf_wanted = self.tf_pub.wanted.matching
+        if not (tf_wanted or p.robot_interest):
+            return  # nobody reads any robot's topic: nothing per robot is built
         robots = self.robots
-        names = snap.namespaces
-        ports = [robots.get(ns) for ns in names]
-        odom_rows = [i for i, p in enumerate(ports) if p is not None and p.odom.wanted]
-        for i, payload in zip(odom_rows, self._odom.encode(snap, odom_rows), strict=True):
-            ports[i].odom.put(payload)  # type: ignore[union-attr]  # odom_rows holds only robots with ports
-        if self.tf_pub.wanted:
-            rows = [i for i, p in enumerate(ports) if p is not None]
+        ports = [robots.get(ns) for ns in snap.namespaces]
+        now = time.time_ns()  # the attachments' source timestamp, once a tick
+        if tf_wanted:
+            rows = [i for i, q in enumerate(ports) if q is not None]
             if rows:
-                self.tf_pub.put(self._tf.encode(snap, rows))
-        self._publish_wheels_and_imu(snap, ports)
-        if snap.scan_namespaces:
-            wanted = [(i, robots.get(ns)) for i, ns in enumerate(snap.scan_namespaces)]
-            wanted = [(i, p) for i, p in wanted if p is not None and p.scan.wanted]
+                self.tf_pub.put(self._tf.encode(snap, rows), now)
+        if p.odom_interest:
+            if p.odom_interest.count >= len(robots):  # everybody's odometry is read: no need to ask
+                odom_rows = [i for i, q in enumerate(ports) if q is not None]
+            else:
+                odom_rows = [i for i, q in enumerate(ports) if q is not None and q.odom.wanted.matching]
+            for i, payload in zip(odom_rows, self._odom.encode(snap, odom_rows), strict=True):
+                ports[i].odom.put(payload, now)  # type: ignore[union-attr]  # odom_rows holds only robots with ports
+        if p.imu_interest or p.joints_interest:
+            self._publish_wheels_and_imu(snap, ports, now)
+        if snap.scan_namespaces and p.scan_interest:
+            due = [(i, robots.get(ns)) for i, ns in enumerate(snap.scan_namespaces)]
+            wanted = [(i, q) for i, q in due if q is not None and q.scan.wanted.matching]
             if wanted:
                 scans = snap.scans
-                for i, p in wanted:
-                    p.scan.put(self._scan.encode(p.namespace, snap.time, scans[i]))  # type: ignore[union-attr]
+                for i, q in wanted:
+                    q.scan.put(self._scan.encode(q.namespace, snap.time, scans[i]), now)
 
-    def _publish_wheels_and_imu(self, snap: TickSnapshot, ports: list[RobotPorts | None]) -> None:
-        """joint_states integrate the wheel angles every tick, read or not, so that a late
-        subscriber sees angles consistent with the distance driven."""
+    def _publish_wheels_and_imu(self, snap: TickSnapshot, ports: list[RobotPorts | None], now: int) -> None:
+        """joint_states integrate the wheel angles from the wheel speeds while somebody reads
+        them (the angles count from the first message a subscriber gets); the IMU's forward
+        acceleration is the change of speed since the last tick."""
         dt = self._dt
         t = snap.time
-        vs, ws, yaws = snap.linear_x.tolist(), snap.angular_z.tolist(), snap.yaw.tolist()
         for i, p in enumerate(ports):
             if p is None:
                 continue
-            v, w = vs[i], ws[i]
-            half = w * p.model.wheel_separation / 2.0
-            r = p.model.wheel_radius
-            left, right = (v - half) / r, (v + half) / r
-            a, b = p.wheel_angles
-            p.wheel_angles = (a + left * dt, b + right * dt)
-            if p.joint_states.wanted:
-                p.joint_states.put(self._joints.encode(t, p.wheel_angles, (left, right)))
-            if p.imu.wanted:
-                accel = (v - p.last_linear) / dt
-                p.imu.put(self._imu.encode(p.namespace, t, yaws[i], w, accel, v * w))
-            p.last_linear = v
+            joints, imu = p.joint_states.wanted.matching, p.imu.wanted.matching
+            if not (joints or imu):
+                continue
+            v, w = float(snap.linear_x[i]), float(snap.angular_z[i])
+            if joints:
+                half = w * p.model.wheel_separation / 2.0
+                r = p.model.wheel_radius
+                left, right = (v - half) / r, (v + half) / r
+                a, b = p.wheel_angles
+                p.wheel_angles = (a + left * dt, b + right * dt)
+                p.joint_states.put(self._joints.encode(t, p.wheel_angles, (left, right)), now)
+            if imu:
+                last = p.last_linear if p.last_linear is not None else v
+                p.imu.put(self._imu.encode(p.namespace, t, float(snap.yaw[i]), w, (v - last) / dt, v * w), now)
+                p.last_linear = v

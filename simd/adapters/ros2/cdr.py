@@ -59,47 +59,71 @@ def covariance(diagonal: tuple[float, ...]) -> bytes:
 
 
 class OdometryCdr:
-    """nav_msgs/msg/Odometry of every robot in a tick: frames ``<ns>/odom`` -> ``<ns>/base_footprint``."""
+    """nav_msgs/msg/Odometry of every robot in a tick: frames ``<ns>/odom`` -> ``<ns>/base_footprint``.
+
+    The messages of a tick are laid out in one buffer, once for a set of robots: each message
+    starts 4 bytes before an 8-aligned offset, so that its payload and the doubles in it are
+    8-aligned in the buffer, and a tick writes the stamps and the numbers of all of them with a
+    few numpy assignments. Each robot's message is then one slice of the buffer's bytes.
+    """
 
     def __init__(self, covariance_diagonal: tuple[float, ...]) -> None:
         self._cov = covariance(covariance_diagonal)
-        self._frames: dict[str, bytes] = {}
-
-    def _frames_of(self, ns: str) -> bytes:
-        blob = self._frames.get(ns)
-        if blob is None:  # stamp (8 bytes), then the strings up to the 8-aligned pose
-            blob = self._frames[ns] = frames_blob(f"{ns}/odom", f"{ns}/base_footprint", 8, 8)
-        return blob
+        self._key: tuple[str, ...] = ()
+        self._buf = np.zeros(0, np.uint8)
+        self._spans: list[tuple[int, int]] = []
+        self._stamp_at = np.zeros(0, np.intp)  # int32 index of each message's stamp
+        self._pose_at = np.zeros(0, np.intp)  # float64 index of each message's pose
 
     def forget(self, ns: str) -> None:
-        self._frames.pop(ns, None)
+        self._key = ()
+
+    def _lay_out(self, names: tuple[str, ...]) -> None:
+        parts: list[bytes] = []
+        spans, stamps, poses = [], [], []
+        pos = 0
+        for ns in names:
+            pad = (4 - pos) % 8  # the payload (after the 4-byte header) starts 8-aligned
+            parts.append(bytes(pad))
+            pos += pad
+            frames = frames_blob(f"{ns}/odom", f"{ns}/base_footprint", 8, 8)
+            message = b"".join((ENCAPSULATION, bytes(8), frames, bytes(56), self._cov, bytes(48), self._cov))
+            spans.append((pos, pos + len(message)))
+            stamps.append((pos + 4) // 4)
+            poses.append((pos + 4 + 8 + len(frames)) // 8)
+            parts.append(message)
+            pos += len(message)
+        self._buf = np.frombuffer(b"".join(parts) + bytes(8), dtype=np.uint8).copy()
+        self._spans = spans
+        self._stamp_at = np.asarray(stamps, dtype=np.intp)
+        self._pose_at = np.asarray(poses, dtype=np.intp)
+        self._key = names
 
     def encode(self, snap: TickSnapshot, rows: list[int]) -> list[bytes]:
         """The messages of robots ``rows`` (indices into the snapshot's columns)."""
         if not rows:
             return []
-        idx = np.asarray(rows)
-        n = len(rows)
+        names = tuple(snap.namespaces[r] for r in rows)
+        if names != self._key:
+            self._lay_out(names)
+        idx = np.asarray(rows, dtype=np.intp)
+        i32 = self._buf[: len(self._buf) // 8 * 8].view(np.int32)
+        f64 = self._buf[: len(self._buf) // 8 * 8].view(np.float64)
+        sec, nsec = stamp(snap.time)
+        i32[self._stamp_at] = sec
+        i32[self._stamp_at + 1] = nsec
+        pose = self._pose_at
         half = snap.yaw[idx] / 2.0
-        pose = np.zeros((n, 7))
-        pose[:, 0] = snap.x[idx]
-        pose[:, 1] = snap.y[idx]
-        pose[:, 5] = np.sin(half)
-        pose[:, 6] = np.cos(half)
-        twist = np.zeros((n, 6))
-        twist[:, 0] = snap.linear_x[idx]
-        twist[:, 1] = snap.linear_y[idx]
-        twist[:, 5] = snap.angular_z[idx]
-        head = ENCAPSULATION + _STAMP.pack(*stamp(snap.time))
-        cov = self._cov
-        names = snap.namespaces
-        poses, twists = pose.tobytes(), twist.tobytes()
-        return [
-            b"".join(
-                (head, self._frames_of(names[r]), poses[i * 56 : i * 56 + 56], cov, twists[i * 48 : i * 48 + 48], cov)
-            )
-            for i, r in enumerate(rows)
-        ]
+        f64[pose] = snap.x[idx]
+        f64[pose + 1] = snap.y[idx]
+        f64[pose + 5] = np.sin(half)
+        f64[pose + 6] = np.cos(half)
+        twist = pose + 7 + 36  # after the pose and its covariance
+        f64[twist] = snap.linear_x[idx]
+        f64[twist + 1] = snap.linear_y[idx]
+        f64[twist + 5] = snap.angular_z[idx]
+        data = self._buf.tobytes()
+        return [data[a:b] for a, b in self._spans]
 
 
 class LaserScanCdr:
@@ -135,38 +159,56 @@ class LaserScanCdr:
 class TfCdr:
     """tf2_msgs/msg/TFMessage with one odom -> base_footprint transform per robot.
 
-    The first transform starts 4 bytes into the payload (after the count), every later one
-    8-aligned (each ends with doubles): each robot's frame names are laid out for both.
+    Laid out once for a set of robots, like :class:`OdometryCdr`: the first transform starts 4
+    bytes into the payload (after the count), every later one 8-aligned (each ends with
+    doubles), and a tick writes the stamps and numbers with numpy.
     """
 
     def __init__(self) -> None:
-        self._frames: dict[str, tuple[bytes, bytes]] = {}
-
-    def _frames_of(self, ns: str, first: bool) -> bytes:
-        pair = self._frames.get(ns)
-        if pair is None:
-            odom, base = f"{ns}/odom", f"{ns}/base_footprint"
-            pair = self._frames[ns] = (frames_blob(odom, base, 4 + 8, 8), frames_blob(odom, base, 8, 8))
-        return pair[0] if first else pair[1]
+        self._key: tuple[str, ...] = ()
+        self._buf = np.zeros(0, np.uint8)
+        self._stamp_at = np.zeros(0, np.intp)
+        self._xyz_at = np.zeros(0, np.intp)
+        self._end = 0
 
     def forget(self, ns: str) -> None:
-        self._frames.pop(ns, None)
+        self._key = ()
+
+    def _lay_out(self, names: tuple[str, ...]) -> None:
+        # 4 bytes of padding, the header, then the payload 8-aligned in the buffer
+        parts = [bytes(4), ENCAPSULATION, _U32.pack(len(names))]
+        stamps, xyz = [], []
+        pos = 4  # payload offset
+        for ns in names:
+            frames = frames_blob(f"{ns}/odom", f"{ns}/base_footprint", pos + 8, 8)
+            stamps.append((pos + 8) // 4)
+            xyz.append((pos + 8 + 8 + len(frames)) // 8)
+            parts += (bytes(8), frames, bytes(56))
+            pos += 8 + len(frames) + 56
+        raw = b"".join(parts)
+        self._end = len(raw)
+        self._buf = np.frombuffer(raw + bytes(-len(raw) % 8), dtype=np.uint8).copy()
+        self._stamp_at = np.asarray(stamps, dtype=np.intp)
+        self._xyz_at = np.asarray(xyz, dtype=np.intp)
+        self._key = names
 
     def encode(self, snap: TickSnapshot, rows: list[int]) -> bytes:
+        names = tuple(snap.namespaces[r] for r in rows)
+        if names != self._key:
+            self._lay_out(names)
         idx = np.asarray(rows, dtype=np.intp)
+        i32 = self._buf.view(np.int32)
+        f64 = self._buf.view(np.float64)
+        sec, nsec = stamp(snap.time)
+        i32[self._stamp_at] = sec
+        i32[self._stamp_at + 1] = nsec
+        at = self._xyz_at
         half = snap.yaw[idx] / 2.0
-        tf = np.zeros((len(rows), 7))
-        tf[:, 0] = snap.x[idx]
-        tf[:, 1] = snap.y[idx]
-        tf[:, 5] = np.sin(half)
-        tf[:, 6] = np.cos(half)
-        raw = tf.tobytes()
-        st = _STAMP.pack(*stamp(snap.time))
-        names = snap.namespaces
-        parts = [ENCAPSULATION, _U32.pack(len(rows))]
-        for i, r in enumerate(rows):
-            parts += (st, self._frames_of(names[r], i == 0), raw[i * 56 : i * 56 + 56])
-        return b"".join(parts)
+        f64[at] = snap.x[idx]
+        f64[at + 1] = snap.y[idx]
+        f64[at + 5] = np.sin(half)
+        f64[at + 6] = np.cos(half)
+        return self._buf[4 : self._end].tobytes()
 
 
 def clock_cdr(t: float) -> bytes:

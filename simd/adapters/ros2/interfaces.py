@@ -146,6 +146,7 @@ def rihs01(typename: str, store: Typestore | None = None) -> str:
     return (store or _hashing_store()).hash_rihs01(typename)
 
 
+@functools.lru_cache(maxsize=256)
 def type_hash(typename: str, distro: Distro) -> str:
     """What rmw_zenoh of ``distro`` puts in keys and tokens for ``typename``."""
     return HUMBLE_HASH if distro == "humble" else rihs01(typename)

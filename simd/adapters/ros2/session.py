@@ -27,6 +27,9 @@ def ros_config(router: str = DEFAULT_ROUTER, *, serve: bool = False) -> zenoh.Co
         conf.insert_json5("mode", json.dumps("peer"))
         conf.insert_json5("connect/endpoints", json.dumps([router]))
         conf.insert_json5("listen/endpoints", json.dumps(["tcp/localhost:0"]))
+    # a tick's messages leave back to back: the fleet session's larger send queues (simd/cli.py)
+    conf.insert_json5("transport/link/tx/queue/size/data", "16")
+    conf.insert_json5("transport/link/tx/queue/size/data_low", "16")
     # as rmw_zenoh: keep retrying the router instead of failing when it starts later
     conf.insert_json5("connect/timeout_ms", "-1")
     conf.insert_json5("connect/exit_on_failure", "false")
