@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import signal
 import sys
 from collections.abc import Mapping
@@ -98,6 +99,13 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
         help="the rmw_zenoh router to join (default: tcp/localhost:7447, where rmw_zenohd listens)",
     )
     g.add_argument(
+        "--ros-world-frame",
+        default=None,
+        metavar="FRAME",
+        help="also send a static FRAME -> <ns>/odom for every robot, so that RViz can show the whole fleet "
+        "in FRAME (leave it off when SLAM publishes map -> <ns>/odom)",
+    )
+    g.add_argument(
         "--ros-serve-router",
         action="store_true",
         help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed)",
@@ -115,6 +123,9 @@ def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int,
             raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {raw!r}") from None
     if not 0 <= domain <= 232:
         raise ValueError(f"the ROS domain id must be in 0..232, got {domain}")
+    frame = args.ros_world_frame
+    if frame is not None and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z0-9_]+)*", frame):
+        raise ValueError(f"--ros-world-frame must be a tf frame name like 'world' (no leading '/'), got {frame!r}")
     distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ("jazzy", "humble") else "jazzy")
     return int(domain), distro
 
@@ -146,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--seed must be >= 0")
     try:
         keys = Keys(args.prefix)
-        ros_domain, ros_distro = ros_settings(args, os.environ)
+        ros_domain, ros_distro = ros_settings(args, os.environ) if args.ros2 else (0, "jazzy")
     except ValueError as e:
         return fail(str(e))
 
@@ -181,28 +192,44 @@ def main(argv: list[str] | None = None) -> int:
             max_robots=args.max_robots,
         ),
     )
-    opts = options_from_args(args, server=True)
-    try:
-        conf = opts.build(defaults=TRANSPORT_DEFAULTS)
-    except (ValueError, zenoh.ZError) as e:
-        return fail(f"bad zenoh configuration: {_short(e)}")
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as e:
-        msg = _short(e)
-        if "in use" in msg.lower():
-            return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
-        return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
     ros_session = None
-    if args.ros2:
+    router = ""
+    if args.ros2:  # first: with --ros-serve-router the fleet session below connects to it
         from simd.adapters.ros2.session import DEFAULT_ROUTER, ros_config
 
         router = args.ros_router or DEFAULT_ROUTER
         try:
             ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router))
         except (ValueError, zenoh.ZError) as e:
-            session.close()
-            return fail(f"cannot open the ROS 2 session on {router}: {_short(e)}")
+            msg = _short(e)
+            if "in use" in msg.lower():
+                msg = "address already in use (is rmw_zenohd running there? then leave out --ros-serve-router)"
+            return fail(f"cannot open the ROS 2 session on {router}: {msg}")
+    opts = options_from_args(args, server=True)
+    through_router = args.ros2 and not args.listen and not args.config
+    if through_router:
+        # rmw_zenohd (or our own router) holds the port fleet clients know, 7447: the fleet
+        # protocol is served through it instead of on a port of its own
+        opts.listen = []
+        opts.connect.append(router.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]"))
+    try:
+        conf = opts.build(defaults=TRANSPORT_DEFAULTS)
+        if through_router:
+            conf.insert_json5("connect/timeout_ms", "-1")  # wait for rmw_zenohd, as ROS processes do
+            conf.insert_json5("connect/exit_on_failure", "false")
+    except (ValueError, zenoh.ZError) as e:
+        if ros_session is not None:
+            ros_session.close()
+        return fail(f"bad zenoh configuration: {_short(e)}")
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as e:
+        if ros_session is not None:
+            ros_session.close()
+        msg = _short(e)
+        if "in use" in msg.lower():
+            return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
+        return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused)
     adapter: FleetAdapter | None = None
     ros_adapter = None
@@ -211,10 +238,10 @@ def main(argv: list[str] | None = None) -> int:
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
 
-            ros_adapter = Ros2Adapter(ros_session, engine, RosOptions(ros_domain, ros_distro))  # type: ignore[arg-type]
+            options = RosOptions(ros_domain, ros_distro, args.ros_world_frame)  # type: ignore[arg-type]
+            ros_adapter = Ros2Adapter(ros_session, engine, options)
             how = "serving as the router on" if args.ros_serve_router else "joining the router at"
-            print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {args.ros_router or DEFAULT_ROUTER}",
-                  flush=True)  # fmt: skip
+            print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {router}", flush=True)
 
         def on_signal(signum: int, frame: FrameType | None) -> None:
             log.info("received %s, stopping", signal.Signals(signum).name)
@@ -224,11 +251,12 @@ def main(argv: list[str] | None = None) -> int:
         signal.signal(signal.SIGTERM, on_signal)
         x, y, _ = world.default_spawn
         mode = "lockstep" if args.lockstep else ("paused" if args.paused else f"rtf {args.rtf:g}")
-        print(
-            f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; "
-            f"listening on {', '.join(opts.listen) or '(config file)'}; prefix '{keys.prefix}'",
-            flush=True,
-        )
+        if through_router:
+            where = f"fleet protocol through the ROS router at {router}"
+        else:
+            where = f"listening on {', '.join(opts.listen) or '(config file)'}"
+        print(f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; {where}; prefix '{keys.prefix}'",
+              flush=True)  # fmt: skip
         slow = {name: why.removeprefix("numpy (").removesuffix(")") for name, why in fast.items() if why != "native"}
         if slow:  # a user who wonders why the daemon is slow should see this
             reasons = set(slow.values())

@@ -277,3 +277,138 @@ def test_humble_keys_carry_no_hash(ros_factory: Callable[..., RosDomain]) -> Non
             jazzy.call(*SPAWN, spawn_request("burger_2", "TB3_2", 0.5, -2.0), timeout=1.0)
     finally:
         jazzy.close()
+
+
+def test_the_shipped_rviz_config_resolves_against_the_four_robot_launch(ros_factory: Callable[..., RosDomain]) -> None:
+    """Every display of docs/ros2/fleetsim.rviz gets messages, and every frame they name reaches
+    the fixed frame through /tf and /tf_static, as RViz needs to draw them."""
+    import yaml
+
+    from tests.conftest import ROOT
+
+    config = yaml.safe_load((ROOT / "docs/ros2/fleetsim.rviz").read_text())
+    manager = config["Visualization Manager"]
+    fixed = manager["Global Options"]["Fixed Frame"]
+    ros = ros_factory("--ros-world-frame", fixed)
+    c = ros.daemon.client()
+    for name, ns, x, y in MULTI:
+        c.spawn(name, x, y, namespace=ns)
+    parents: dict[str, str] = {}
+    static = ros.tool.subscribe_late("/tf_static", "tf2_msgs/msg/TFMessage")
+    dynamic = ros.tool.subscribe("/tf", "tf2_msgs/msg/TFMessage")
+    frames: set[str] = set()
+    for display in manager["Displays"]:
+        if "Topic" not in display:
+            continue
+        topic = display["Topic"]["Value"]
+        typename = {"rviz_default_plugins/LaserScan": "sensor_msgs/msg/LaserScan",
+                    "rviz_default_plugins/Odometry": "nav_msgs/msg/Odometry"}[display["Class"]]  # fmt: skip
+        m = wait_for(ros.tool.subscribe(topic, typename))[0]
+        frames.add(m.header.frame_id)
+    assert len(frames) == 8  # four scans, four odometry frames
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not all(_reaches(f, fixed, parents) for f in frames):
+        for q in (static, dynamic):
+            while not q.empty():
+                item = q.get_nowait()
+                message = item[0] if isinstance(item, tuple) else item
+                for t in message.transforms:
+                    parents[t.child_frame_id] = t.header.frame_id
+        time.sleep(0.1)
+    assert all(_reaches(f, fixed, parents) for f in frames), parents
+
+
+def _reaches(frame: str, root: str, parents: dict[str, str]) -> bool:
+    seen = set()
+    while frame != root:
+        if frame in seen or frame not in parents:
+            return False
+        seen.add(frame)
+        frame = parents[frame]
+    return True
+
+
+@pytest.mark.parametrize(
+    ("args", "env", "message"),
+    [
+        (["--ros-domain-id", "300"], {}, "domain id must be in 0..232"),
+        ([], {"ROS_DOMAIN_ID": "abc"}, "ROS_DOMAIN_ID must be a whole number"),
+        (["--ros-world-frame", "/world"], {}, "--ros-world-frame must be a tf frame name"),
+        (["--ros-distro", "iron"], {}, "invalid choice"),
+    ],
+)
+def test_bad_ros_flags_are_one_clear_line(args: list[str], env: dict[str, str], message: str) -> None:
+    import os
+    import subprocess
+
+    from tests.conftest import ROOT, free_port, simd_command
+
+    p = subprocess.run(
+        simd_command("--ros2", "-l", f"tcp/127.0.0.1:{free_port()}", *args),
+        capture_output=True, text=True, timeout=30, cwd=ROOT, env={**os.environ, **env},
+    )  # fmt: skip
+    assert p.returncode == 2
+    assert "Traceback" not in p.stderr
+    last = p.stderr.strip().splitlines()[-1]  # argparse puts its usage before
+    assert last.startswith("simd: error:") and message in last
+
+
+def test_imu_and_joint_states_follow_the_wheels(ros: RosDomain) -> None:
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    imu = tool.subscribe("/TB3_1/imu", "sensor_msgs/msg/Imu")
+    joints = tool.subscribe("/TB3_1/joint_states", "sensor_msgs/msg/JointState")
+    pub = tool.publisher("/TB3_1/cmd_vel", "geometry_msgs/msg/Twist")
+    drive_until(tool, "TB3_1", lambda: pub(twist(0.1, 0.5)), lambda m: abs(m.twist.twist.angular.z - 0.5) < 0.01)
+    pub(twist(0.1, 0.5))
+    j = latest(joints)[0]
+    assert list(j.name) == ["wheel_left_joint", "wheel_right_joint"]
+    left, right = j.velocity
+    # v = r (left + right) / 2, w = r (right - left) / separation, for the burger
+    assert 0.033 * (left + right) / 2 == pytest.approx(0.1, abs=0.01)
+    assert 0.033 * (right - left) / 0.160 == pytest.approx(0.5, abs=0.05)
+    later = latest(joints)[0]
+    assert later.position[1] > j.position[1]  # the right wheel turns forward
+    i = latest(imu)[0]
+    assert i.header.frame_id == "TB3_1/imu_link"
+    assert i.angular_velocity.z == pytest.approx(0.5, abs=0.05)
+    assert i.linear_acceleration.y == pytest.approx(0.1 * 0.5, abs=0.01)  # centripetal
+    assert i.linear_acceleration.z == pytest.approx(9.80665)
+
+
+@pytest.mark.parametrize("serve", [True, False])
+def test_without_listen_the_fleet_protocol_shares_the_routers_port(serve: bool, router: str, tmp_path: Any) -> None:
+    """rmw_zenohd holds 7447, the port fleet clients know: simd --ros2 then serves the fleet
+    protocol through the router (its own with --ros-serve-router) instead of failing on the port."""
+    import subprocess
+
+    from clients import FleetClient
+    from protocol import FleetError
+    from tests.conftest import ROOT, free_port, simd_command
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}" if serve else router
+    args = ["--ros2", "--ros-router", endpoint] + (["--ros-serve-router"] if serve else [])
+    log = tmp_path / "simd.log"
+    with log.open("w") as out:
+        proc = subprocess.Popen(simd_command(*args), stdout=out, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
+    tool = None
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            assert proc.poll() is None, log.read_text()
+            try:
+                with FleetClient(endpoint, timeout=1.0) as c:
+                    c.spawn("tb3_0", -2.0, -0.5)
+                    break
+            except FleetError:
+                assert time.monotonic() < deadline, log.read_text()
+        tool = StandIn(endpoint)
+        tool.wait_graph(lambda g: any(e.namespace == "/tb3_0" for e in g))
+        assert tool.service_available(*SPAWN)
+        assert wait_for(tool.subscribe("/tb3_0/odom", "nav_msgs/msg/Odometry"))[0].header.frame_id == "tb3_0/odom"
+        assert "fleet protocol through the ROS router" in log.read_text()
+    finally:
+        if tool is not None:
+            tool.close()
+        proc.terminate()
+        proc.wait(10)

@@ -46,6 +46,8 @@ NODE_NAME = "fleetsim"
 class RosOptions:
     domain_id: int = 0
     distro: Distro = "jazzy"
+    #: a frame every robot's odom hangs from (a fixed frame for RViz), or none
+    world_frame: str | None = None
 
 
 class Ros2Adapter:
@@ -121,7 +123,7 @@ class Ros2Adapter:
     def _add_robot(self, namespace: str, model: Any) -> None:
         if namespace in self.robots:
             return
-        self.robots[namespace] = RobotPorts(self.participant, namespace, model)
+        self.robots[namespace] = RobotPorts(self.participant, namespace, model, self.options.world_frame)
 
     def _remove_robot(self, namespace: str) -> None:
         ports = self.robots.pop(namespace, None)

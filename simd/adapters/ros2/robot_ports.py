@@ -141,9 +141,10 @@ def declare_node(p: Participant, node: Node, tokens: list[Any]) -> Node:
 class RobotPorts:
     """A robot's ROS entities; also the wheel angles its joint_states report."""
 
-    def __init__(self, p: Participant, namespace: str, model: RobotModel) -> None:
+    def __init__(self, p: Participant, namespace: str, model: RobotModel, world_frame: str | None = None) -> None:
         self.namespace = namespace
         self.model = model
+        self.world_frame = world_frame
         self._tokens: list[Any] = []
         ns = f"/{namespace}"
         t = self._tokens
@@ -169,10 +170,13 @@ class RobotPorts:
         self.last_linear: float | None = None  # the IMU's speed a tick ago
 
     def static_transforms(self) -> list[cdr.Transform]:
-        """base_footprint -> base_link -> base_scan and imu_link, as robot_state_publisher sends them."""
+        """base_footprint -> base_link -> base_scan and imu_link, as robot_state_publisher sends them;
+        and, with a world frame, world -> odom (the odometry is ground truth: they coincide)."""
         ns, m = self.namespace, self.model.name
         identity = (0.0, 0.0, 0.0, 1.0)
+        world = [(self.world_frame, f"{ns}/odom", (0.0, 0.0, 0.0), identity)] if self.world_frame else []
         return [
+            *world,
             (f"{ns}/base_footprint", f"{ns}/base_link", (0.0, 0.0, BASE_LINK_Z), identity),
             (f"{ns}/base_link", f"{ns}/base_scan", SCAN_OFFSET[m], identity),
             (f"{ns}/base_link", f"{ns}/imu_link", IMU_OFFSET[m], identity),
