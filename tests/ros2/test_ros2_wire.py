@@ -13,6 +13,7 @@ import pytest
 import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
+from protocol.frames import Transform
 from simd.adapters.ros2 import cdr, gazebo_services, graph, interfaces
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.core.snapshot import TickSnapshot
@@ -199,7 +200,7 @@ def _check_tf(enc: cdr.TfCdr, snap: TickSnapshot, rows: list[int]) -> None:
 
 
 def test_static_tf_of_several_robots_equals_rosbags() -> None:
-    per_robot: list[list[cdr.Transform]] = [
+    per_robot: list[list[Transform]] = [
         [(f"{ns}/base_footprint", f"{ns}/base_link", (0.0, 0.0, 0.01), (0.0, 0.0, 0.0, 1.0)),
          (f"{ns}/base_link", f"{ns}/base_scan", (-0.032, 0.0, 0.172), (0.0, 0.0, 0.0, 1.0))]
         for ns in NAMES

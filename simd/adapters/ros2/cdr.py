@@ -18,6 +18,7 @@ import struct
 import numpy as np
 import numpy.typing as npt
 
+from protocol.frames import Transform
 from simd.core.snapshot import TickSnapshot
 
 F32 = npt.NDArray[np.float32]
@@ -255,7 +256,6 @@ def _finite(v: float, w: float) -> tuple[float, float]:
     return v, w
 
 
-Transform = tuple[str, str, tuple[float, float, float], tuple[float, float, float, float]]
 
 
 def transform_elements(stamp_: tuple[int, int], transforms: list[Transform], first: bool) -> bytes:

@@ -22,16 +22,12 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
+from protocol import frames
 from simd.adapters.ros2 import cdr, graph
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.adapters.ros2.interfaces import Distro
 from simd.adapters.zenoh_entities import Interest, Tally, undeclare_all
 from simd.core.models import RobotModel
-
-#: base_footprint -> base_link, and base_link -> base_scan / imu_link, per model (the URDF's offsets)
-BASE_LINK_Z = 0.010
-SCAN_OFFSET = {"burger": (-0.032, 0.0, 0.172), "waffle": (-0.064, 0.0, 0.122), "waffle_pi": (-0.064, 0.0, 0.122)}
-IMU_OFFSET = {"burger": (-0.032, 0.0, 0.068), "waffle": (0.0, 0.0, 0.068), "waffle_pi": (0.0, 0.0, 0.068)}
 
 #: the node that holds each robot's topics, in the robot's namespace
 NODE_NAME = "turtlebot3"
@@ -169,18 +165,9 @@ class RobotPorts:
         self.wheel_angles = (0.0, 0.0)
         self.last_linear: float | None = None  # the IMU's speed a tick ago
 
-    def static_transforms(self) -> list[cdr.Transform]:
-        """base_footprint -> base_link -> base_scan and imu_link, as robot_state_publisher sends them;
-        and, with a world frame, world -> odom (the odometry is ground truth: they coincide)."""
-        ns, m = self.namespace, self.model.name
-        identity = (0.0, 0.0, 0.0, 1.0)
-        world = [(self.world_frame, f"{ns}/odom", (0.0, 0.0, 0.0), identity)] if self.world_frame else []
-        return [
-            *world,
-            (f"{ns}/base_footprint", f"{ns}/base_link", (0.0, 0.0, BASE_LINK_Z), identity),
-            (f"{ns}/base_link", f"{ns}/base_scan", SCAN_OFFSET[m], identity),
-            (f"{ns}/base_link", f"{ns}/imu_link", IMU_OFFSET[m], identity),
-        ]
+    def static_transforms(self) -> list[frames.Transform]:
+        """The robot's fixed frames (protocol/frames.py), as robot_state_publisher sends them."""
+        return frames.static_transforms(self.namespace, self.model.name, self.world_frame)
 
     def close(self) -> None:
         for pub in (self.odom, self.scan, self.imu, self.joint_states, self.tf_static):

@@ -1,0 +1,244 @@
+"""``fleet-record``: a fleet's topics into a rosbag2 bag (MCAP) that ROS 2 tools and Foxglove open.
+
+    fleet-record                                  # every robot, until Ctrl-C
+    fleet-record -o run1 --robots TB3_1,TB3_2 --duration 60
+    fleet-record --topics odom,tf,tf_static,clock
+
+It follows the daemon's fleet topics (one message a tick for the whole fleet, so it keeps up
+with large fleets) and writes what the ROS 2 adapter would have published: ``/<ns>/odom``,
+``/<ns>/scan``, ``/tf``, ``/tf_static`` and ``/clock``, no ROS needed on either side. A
+message's time in the bag is its sim-time stamp, as ``ros2 bag record --use-sim-time`` records,
+so ``ros2 bag play --clock`` replays the run at its own pace. It shows its progress while it
+records and what it wrote when it stops (after ``--duration`` seconds of wall time, or Ctrl-C).
+"""
+
+from __future__ import annotations
+
+import argparse
+import queue
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+
+import numpy as np
+import numpy.typing as npt
+
+from clients import fleet_to_ros as conv
+from clients.api import FleetClient
+from clients.bag import BagExists, BagWriter
+from clients.fleet_args import add_daemon_args
+from protocol import FleetError
+from protocol.errors import ErrorCode
+from protocol.frames import static_transforms
+from protocol.messages import FleetOdometry, FleetScans
+from protocol.zenoh_config import options_from_args
+
+ROBOT_TOPICS = ("odom", "scan")
+FLEET_TOPICS = ("tf", "tf_static", "clock")
+DEFAULT_TOPICS = (*ROBOT_TOPICS, *FLEET_TOPICS)
+EXIT_OK, EXIT_USAGE, EXIT_NO_DAEMON = 0, 2, 3
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="fleet-record",
+        description="Record a fleet's topics into a rosbag2 bag (MCAP) for ros2 bag play/info and Foxglove.",
+    )
+    p.add_argument("-o", "--output", metavar="DIR", help="the bag directory to create (default: fleet_<date-time>)")
+    p.add_argument("--robots", metavar="NS,...", help="namespaces to record (default: every robot, also new ones)")
+    p.add_argument(
+        "--topics",
+        metavar="T,...",
+        default=",".join(DEFAULT_TOPICS),
+        help=f"what to record, of {', '.join(DEFAULT_TOPICS)} (default: all)",
+    )
+    p.add_argument(
+        "--duration", type=float, default=0.0, metavar="S", help="stop after S seconds of wall time (default: Ctrl-C)"
+    )
+    add_daemon_args(p)
+    return p
+
+
+@dataclass
+class Plan:
+    """What to record, checked before anything is connected or created."""
+
+    output: Path
+    robots: set[str] | None
+    topics: set[str]
+    duration: float
+
+
+def plan_from_args(args: argparse.Namespace, now: time.struct_time | None = None) -> Plan:
+    """The recording asked for, or ValueError with a one-line reason."""
+    topics = {t.strip().lstrip("/") for t in args.topics.split(",") if t.strip()}
+    unknown = topics - set(DEFAULT_TOPICS)
+    if unknown or not topics:
+        raise ValueError(f"--topics takes {', '.join(DEFAULT_TOPICS)}; not {', '.join(sorted(unknown)) or 'nothing'}")
+    robots = None
+    if args.robots is not None:
+        robots = {r.strip().strip("/") for r in args.robots.split(",") if r.strip()}
+        if not robots:
+            raise ValueError("--robots needs at least one namespace")
+    if not args.duration >= 0:
+        raise ValueError(f"--duration must be >= 0, got {args.duration}")
+    output = Path(args.output or time.strftime("fleet_%Y_%m_%d-%H_%M_%S", now or time.localtime()))
+    if output.exists():
+        raise ValueError(f"{output} already exists: choose another -o (nothing was written)")
+    return Plan(output, robots, topics, args.duration)
+
+
+@dataclass
+class Recorder:
+    """Turns the fleet topics into bag messages; runs on the main thread, fed by a queue."""
+
+    plan: Plan
+    bag: BagWriter
+    client: FleetClient
+    models: dict[str, str] = field(default_factory=dict)  # namespace -> model, of robots seen
+    covariance: npt.NDArray[np.float64] | None = None
+    inbox: queue.Queue[FleetOdometry | FleetScans] = field(default_factory=queue.Queue)
+
+    def wanted(self, namespaces: list[str]) -> list[int]:
+        robots = self.plan.robots
+        return [i for i, ns in enumerate(namespaces) if robots is None or ns in robots]
+
+    def _meet(self, namespaces: list[str], rows: list[int], t_ns: int) -> None:
+        """Robots seen for the first time: their model (for /tf_static) and the covariance."""
+        new = [namespaces[i] for i in rows if namespaces[i] not in self.models]
+        if not new:
+            return
+        by_ns = {r.namespace: r for r in self.client.robots()}
+        if self.covariance is None:
+            odom = self.client.latest_odom(new[0])
+            if odom is not None:
+                self.covariance = np.asarray(odom.pose.covariance, dtype=np.float64)
+        for ns in new:
+            record = by_ns.get(ns)
+            self.models[ns] = record.model if record is not None else "burger"
+            if "tf_static" in self.plan.topics:
+                message = conv.static_tf(self.bag.make, static_transforms(ns, self.models[ns]))
+                self.bag.write("/tf_static", "tf2_msgs/msg/TFMessage", t_ns, message, latched=True)
+
+    def handle(self, msg: FleetOdometry | FleetScans) -> None:
+        t_ns = conv.stamp_ns(msg.stamp)
+        rows = self.wanted(msg.namespaces)
+        topics = self.plan.topics
+        if isinstance(msg, FleetScans):
+            if "scan" in topics and rows:
+                for i, scan in zip(rows, conv.scans(self.bag.make, msg, rows), strict=True):
+                    self.bag.write(f"/{msg.namespaces[i]}/scan", "sensor_msgs/msg/LaserScan", t_ns, scan)
+            return
+        self._meet(msg.namespaces, rows, t_ns)
+        if "clock" in topics:
+            self.bag.write("/clock", "rosgraph_msgs/msg/Clock", t_ns, conv.clock(self.bag.make, msg.stamp))
+        if not rows:
+            return
+        if "tf" in topics:
+            self.bag.write("/tf", "tf2_msgs/msg/TFMessage", t_ns, conv.tf(self.bag.make, msg, rows))
+        if "odom" in topics:
+            cov = self.covariance if self.covariance is not None else np.zeros(36)
+            for i, odom in zip(rows, conv.odometry(self.bag.make, msg, rows, cov), strict=True):
+                self.bag.write(f"/{msg.namespaces[i]}/odom", "nav_msgs/msg/Odometry", t_ns, odom)
+
+
+def summary(bag: BagWriter, wall: float) -> str:
+    """What ``ros2 bag info`` would say, in short."""
+    size = bag.size_bytes()
+    if bag.first_ns is None or bag.last_ns is None:
+        span = "no messages (is the daemon paused, or are there no robots?)"
+    else:
+        t0, t1 = bag.first_ns / 1e9, bag.last_ns / 1e9
+        span = f"sim time {t0:.3f} .. {t1:.3f} s ({t1 - t0:.3f} s)"
+    lines = [
+        f"fleet-record: wrote {bag.path} ({size / 1e6:.2f} MB, {sum(bag.counts.values())} messages) "
+        f"in {wall:.1f} s of wall time; {span}"
+    ]
+    width = max((len(t) for t in bag.counts), default=5)
+    for topic in sorted(bag.counts, key=_topic_order):
+        lines.append(f"  {topic:<{width}}  {bag.counts[topic]:>8} messages")
+    lines.append(f"  play it: ros2 bag play {bag.path} --clock     info: ros2 bag info {bag.path}")
+    return "\n".join(lines)
+
+
+def _topic_order(topic: str) -> tuple[int, str]:
+    return (0 if topic.count("/") == 1 else 1, topic)
+
+
+def progress_line(bag: BagWriter, elapsed: float, backlog: int) -> str:
+    n = sum(bag.counts.values())
+    robots = len({t.split("/")[1] for t in bag.counts if t.count("/") == 2})
+    late = f", {backlog} waiting" if backlog > 100 else ""
+    return f"recording {elapsed:6.1f} s: {n} messages, {robots} robots{late}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        plan = plan_from_args(args)
+    except ValueError as e:
+        print(f"fleet-record: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        client = FleetClient(prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False))
+        client.clock()  # fail now, with the usual message, if no daemon answers
+    except FleetError as e:
+        print(f"fleet-record: {e.message}", file=sys.stderr)
+        return EXIT_NO_DAEMON if e.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT) else EXIT_USAGE
+    try:
+        bag = BagWriter(plan.output)
+    except (BagExists, OSError) as e:
+        client.close()
+        print(f"fleet-record: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    rec = Recorder(plan, bag, client)
+    wants_scans = "scan" in plan.topics
+    client.on_fleet_odom(rec.inbox.put)
+    if wants_scans:
+        client.on_fleet_scans(rec.inbox.put)
+    t0 = time.monotonic()
+    tty = sys.stderr.isatty()
+    next_report = t0 + (1.0 if tty else 5.0)
+    print(f"fleet-record: recording {', '.join(sorted(plan.topics))} of "
+          f"{'every robot' if plan.robots is None else ', '.join(sorted(plan.robots))} into {plan.output} "
+          "(Ctrl-C stops)", file=sys.stderr, flush=True)  # fmt: skip
+    try:
+        while not stop.is_set():
+            now = time.monotonic()
+            if plan.duration and now - t0 >= plan.duration:
+                break
+            try:
+                rec.handle(rec.inbox.get(timeout=0.1))
+            except queue.Empty:
+                pass
+            if now >= next_report:
+                line = progress_line(bag, now - t0, rec.inbox.qsize())
+                print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+                next_report = now + (1.0 if tty else 5.0)
+    finally:
+        client.close()  # no more input; what arrived is written
+        while True:
+            try:
+                rec.handle(rec.inbox.get_nowait())
+            except queue.Empty:
+                break
+        bag.close()
+    if tty:
+        print(file=sys.stderr)
+    print(summary(bag, time.monotonic() - t0), flush=True)
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())
