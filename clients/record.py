@@ -3,18 +3,23 @@
     fleet-record                                  # every robot, until Ctrl-C
     fleet-record -o run1 --robots TB3_1,TB3_2 --duration 60
     fleet-record --topics odom,tf,tf_static,clock
+    fleet-record --source ros --topics odom,scan,imu,tf,tf_static   # from simd --ros2's ROS topics
 
-It follows the daemon's fleet topics (one message a tick for the whole fleet, so it keeps up
-with large fleets) and writes what the ROS 2 adapter would have published: ``/<ns>/odom``,
-``/<ns>/scan``, ``/tf``, ``/tf_static`` and ``/clock``, no ROS needed on either side. A
-message's time in the bag is its sim-time stamp, as ``ros2 bag record --use-sim-time`` records,
-so ``ros2 bag play --clock`` replays the run at its own pace. It shows its progress while it
-records and what it wrote when it stops (after ``--duration`` seconds of wall time, or Ctrl-C).
+By default it follows the daemon's fleet topics (one message a tick for the whole fleet, so it
+keeps up with large fleets) and writes what the ROS 2 adapter would have published:
+``/<ns>/odom``, ``/<ns>/scan``, ``/tf``, ``/tf_static`` and ``/clock``, with no ROS on either side.
+With ``--source ros`` it records the ROS topics themselves off rmw_zenoh's wire (a daemon
+started with ``--ros2``, or any ROS 2 publisher of those topics), the bytes as they came
+(clients/ros_source.py). A message's time in the bag is its sim-time stamp, as ``ros2 bag record
+--use-sim-time`` records, so ``ros2 bag play --clock`` replays the run at its own pace. It shows
+its progress while it records and what it wrote when it stops (after ``--duration`` seconds of
+wall time, or Ctrl-C).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import queue
 import signal
 import sys
@@ -26,8 +31,10 @@ from types import FrameType
 
 import numpy as np
 import numpy.typing as npt
+import zenoh
 
 from clients import fleet_to_ros as conv
+from clients import ros_source
 from clients.api import FleetClient
 from clients.bag import BagExists, BagWriter
 from clients.fleet_args import add_daemon_args
@@ -40,6 +47,8 @@ from protocol.zenoh_config import options_from_args
 ROBOT_TOPICS = ("odom", "scan")
 FLEET_TOPICS = ("tf", "tf_static", "clock")
 DEFAULT_TOPICS = (*ROBOT_TOPICS, *FLEET_TOPICS)
+#: what --source ros can take besides: every robot topic the ROS adapter publishes
+ROS_TOPICS = (*ros_source.ROBOT_TOPICS, *ros_source.FLEET_TOPICS)
 EXIT_OK, EXIT_USAGE, EXIT_NO_DAEMON = 0, 2, 3
 
 
@@ -54,7 +63,24 @@ def build_parser() -> argparse.ArgumentParser:
         "--topics",
         metavar="T,...",
         default=",".join(DEFAULT_TOPICS),
-        help=f"what to record, of {', '.join(DEFAULT_TOPICS)} (default: all)",
+        help=f"what to record, of {', '.join(DEFAULT_TOPICS)}, and with --source ros also imu, joint_states "
+        f"(default: {','.join(DEFAULT_TOPICS)})",
+    )
+    p.add_argument(
+        "--source",
+        choices=("fleet", "ros"),
+        default="fleet",
+        help="fleet: the daemon's fleet topics, converted; ros: the ROS 2 topics of simd --ros2 off rmw_zenoh's "
+        "wire (default: %(default)s)",
+    )
+    p.add_argument(
+        "--ros-router",
+        default="tcp/localhost:7447",
+        metavar="ENDPOINT",
+        help="with --source ros: the rmw_zenoh router (default: %(default)s)",
+    )
+    p.add_argument(
+        "--ros-domain-id", type=int, default=None, metavar="N", help="with --source ros (default: $ROS_DOMAIN_ID or 0)"
     )
     p.add_argument(
         "--duration", type=float, default=0.0, metavar="S", help="stop after S seconds of wall time (default: Ctrl-C)"
@@ -71,14 +97,26 @@ class Plan:
     robots: set[str] | None
     topics: set[str]
     duration: float
+    source: str = "fleet"
+    domain: int = 0
 
 
 def plan_from_args(args: argparse.Namespace, now: time.struct_time | None = None) -> Plan:
     """The recording asked for, or ValueError with a one-line reason."""
     topics = {t.strip().lstrip("/") for t in args.topics.split(",") if t.strip()}
-    unknown = topics - set(DEFAULT_TOPICS)
+    known = ROS_TOPICS if args.source == "ros" else DEFAULT_TOPICS
+    unknown = topics - set(known)
     if unknown or not topics:
-        raise ValueError(f"--topics takes {', '.join(DEFAULT_TOPICS)}; not {', '.join(sorted(unknown)) or 'nothing'}")
+        more = " (imu and joint_states need --source ros)" if unknown & set(ROS_TOPICS) else ""
+        raise ValueError(f"--topics takes {', '.join(known)}; not {', '.join(sorted(unknown)) or 'nothing'}{more}")
+    domain = args.ros_domain_id
+    if domain is None:
+        raw = os.environ.get("ROS_DOMAIN_ID", "").strip()
+        if not raw.isdigit() and raw:
+            raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {raw!r}")
+        domain = int(raw or 0)
+    if not 0 <= domain <= 232:
+        raise ValueError(f"the ROS domain id must be in 0..232, got {domain}")
     robots = None
     if args.robots is not None:
         robots = {r.strip().strip("/") for r in args.robots.split(",") if r.strip()}
@@ -89,7 +127,10 @@ def plan_from_args(args: argparse.Namespace, now: time.struct_time | None = None
     output = Path(args.output or time.strftime("fleet_%Y_%m_%d-%H_%M_%S", now or time.localtime()))
     if output.exists():
         raise ValueError(f"{output} already exists: choose another -o (nothing was written)")
-    return Plan(output, robots, topics, args.duration)
+    return Plan(output, robots, topics, args.duration, args.source, domain)
+
+
+RosSample = tuple[str, str, int, bytes, bool]  # topic, type, stamp (ns), CDR, latched
 
 
 @dataclass
@@ -101,7 +142,7 @@ class Recorder:
     client: FleetClient
     models: dict[str, str] = field(default_factory=dict)  # namespace -> model, of robots seen
     covariance: npt.NDArray[np.float64] | None = None
-    inbox: queue.Queue[FleetOdometry | FleetScans] = field(default_factory=queue.Queue)
+    inbox: queue.Queue[FleetOdometry | FleetScans | RosSample] = field(default_factory=queue.Queue)
 
     def wanted(self, namespaces: list[str]) -> list[int]:
         robots = self.plan.robots
@@ -124,7 +165,11 @@ class Recorder:
                 message = conv.static_tf(self.bag.make, static_transforms(ns, self.models[ns]))
                 self.bag.write("/tf_static", "tf2_msgs/msg/TFMessage", t_ns, message, latched=True)
 
-    def handle(self, msg: FleetOdometry | FleetScans) -> None:
+    def handle(self, msg: FleetOdometry | FleetScans | RosSample) -> None:
+        if isinstance(msg, tuple):  # off the ROS wire: written as it came
+            topic, typename, t_ns, data, latched = msg
+            self.bag.write_cdr(topic, typename, t_ns, data, latched=latched)
+            return
         t_ns = conv.stamp_ns(msg.stamp)
         rows = self.wanted(msg.namespaces)
         topics = self.plan.topics
@@ -190,27 +235,45 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)
+    client: FleetClient | None = None
+    source: ros_source.RosSource | None = None
+    session: zenoh.Session | None = None
     try:
-        client = FleetClient(prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False))
-        client.clock()  # fail now, with the usual message, if no daemon answers
+        if plan.source == "ros":
+            session = ros_source.ros_session(args.ros_router, args.timeout)
+        else:
+            client = FleetClient(
+                prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False)
+            )
+            client.clock()  # fail now, with the usual message, if no daemon answers
     except FleetError as e:
         print(f"fleet-record: {e.message}", file=sys.stderr)
         return EXIT_NO_DAEMON if e.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT) else EXIT_USAGE
+    except zenoh.ZError as e:
+        print(f"fleet-record: cannot reach the ROS router at {args.ros_router}: {e} (is rmw_zenohd running?)",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_NO_DAEMON
     try:
         bag = BagWriter(plan.output)
     except (BagExists, OSError) as e:
-        client.close()
+        if client is not None:
+            client.close()
+        if session is not None:
+            session.close()
         print(f"fleet-record: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    rec = Recorder(plan, bag, client)
-    wants_scans = "scan" in plan.topics
-    client.on_fleet_odom(rec.inbox.put)
-    if wants_scans:
-        client.on_fleet_scans(rec.inbox.put)
+    rec = Recorder(plan, bag, client)  # type: ignore[arg-type]  # None with --source ros, which never asks it
+    if client is not None:
+        client.on_fleet_odom(rec.inbox.put)
+        if "scan" in plan.topics:
+            client.on_fleet_scans(rec.inbox.put)
+    if session is not None:
+        wanted = ros_source.topic_filter(plan.topics, plan.robots)
+        source = ros_source.RosSource(session, plan.domain, wanted, lambda *sample: rec.inbox.put(sample))
     t0 = time.monotonic()
     tty = sys.stderr.isatty()
     next_report = t0 + (1.0 if tty else 5.0)
-    print(f"fleet-record: recording {', '.join(sorted(plan.topics))} of "
+    print(f"fleet-record: recording {', '.join(sorted(plan.topics))} ({plan.source} source) of "
           f"{'every robot' if plan.robots is None else ', '.join(sorted(plan.robots))} into {plan.output} "
           "(Ctrl-C stops)", file=sys.stderr, flush=True)  # fmt: skip
     try:
@@ -226,8 +289,13 @@ def main(argv: list[str] | None = None) -> int:
                 line = progress_line(bag, now - t0, rec.inbox.qsize())
                 print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
                 next_report = now + (1.0 if tty else 5.0)
-    finally:
-        client.close()  # no more input; what arrived is written
+    finally:  # no more input; what arrived is written
+        if client is not None:
+            client.close()
+        if source is not None:
+            source.close()
+        if session is not None:
+            session.close()
         while True:
             try:
                 rec.handle(rec.inbox.get_nowait())
