@@ -59,6 +59,26 @@ def covariance(diagonal: tuple[float, ...]) -> bytes:
     return c.tobytes()
 
 
+def _write_stamps_and_poses(
+    buf: npt.NDArray[np.uint8], stamp_at: npt.NDArray[np.intp], pose_at: npt.NDArray[np.intp],
+    snap: TickSnapshot, rows: npt.NDArray[np.intp],
+) -> npt.NDArray[np.float64]:  # fmt: skip
+    """Write the tick's stamp (int32 indices ``stamp_at``) and each robot's position and yaw
+    quaternion (float64 indices ``pose_at``: x y z, then qx qy qz qw) into a laid-out buffer;
+    returns its float64 view for the rest."""
+    i32 = buf.view(np.int32)
+    f64 = buf.view(np.float64)
+    sec, nsec = stamp(snap.time)
+    i32[stamp_at] = sec
+    i32[stamp_at + 1] = nsec
+    half = snap.yaw[rows] / 2.0
+    f64[pose_at] = snap.x[rows]
+    f64[pose_at + 1] = snap.y[rows]
+    f64[pose_at + 5] = np.sin(half)
+    f64[pose_at + 6] = np.cos(half)
+    return f64
+
+
 class OdometryCdr:
     """nav_msgs/msg/Odometry of every robot in a tick: frames ``<ns>/odom`` -> ``<ns>/base_footprint``.
 
@@ -108,18 +128,8 @@ class OdometryCdr:
         if names != self._key:
             self._lay_out(names)
         idx = np.asarray(rows, dtype=np.intp)
-        i32 = self._buf[: len(self._buf) // 8 * 8].view(np.int32)
-        f64 = self._buf[: len(self._buf) // 8 * 8].view(np.float64)
-        sec, nsec = stamp(snap.time)
-        i32[self._stamp_at] = sec
-        i32[self._stamp_at + 1] = nsec
-        pose = self._pose_at
-        half = snap.yaw[idx] / 2.0
-        f64[pose] = snap.x[idx]
-        f64[pose + 1] = snap.y[idx]
-        f64[pose + 5] = np.sin(half)
-        f64[pose + 6] = np.cos(half)
-        twist = pose + 7 + 36  # after the pose and its covariance
+        f64 = _write_stamps_and_poses(self._buf[: len(self._buf) // 8 * 8], self._stamp_at, self._pose_at, snap, idx)
+        twist = self._pose_at + 7 + 36  # after the pose and its covariance
         f64[twist] = snap.linear_x[idx]
         f64[twist + 1] = snap.linear_y[idx]
         f64[twist + 5] = snap.angular_z[idx]
@@ -197,18 +207,7 @@ class TfCdr:
         names = tuple(snap.namespaces[r] for r in rows)
         if names != self._key:
             self._lay_out(names)
-        idx = np.asarray(rows, dtype=np.intp)
-        i32 = self._buf.view(np.int32)
-        f64 = self._buf.view(np.float64)
-        sec, nsec = stamp(snap.time)
-        i32[self._stamp_at] = sec
-        i32[self._stamp_at + 1] = nsec
-        at = self._xyz_at
-        half = snap.yaw[idx] / 2.0
-        f64[at] = snap.x[idx]
-        f64[at + 1] = snap.y[idx]
-        f64[at + 5] = np.sin(half)
-        f64[at + 6] = np.cos(half)
+        _write_stamps_and_poses(self._buf, self._stamp_at, self._xyz_at, snap, np.asarray(rows, dtype=np.intp))
         return self._buf[4 : self._end].tobytes()
 
 
@@ -254,8 +253,6 @@ def _finite(v: float, w: float) -> tuple[float, float]:
     if not (math.isfinite(v) and math.isfinite(w)):
         raise CdrError("velocity is not finite")
     return v, w
-
-
 
 
 def transform_elements(stamp_: tuple[int, int], transforms: list[Transform], first: bool) -> bytes:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import math
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from typing import Any
 
 from protocol.control import DeleteRequest, SpawnRequest
@@ -118,34 +119,33 @@ def _respond(call: Call, success: bool, message: str) -> None:
     call.respond(success=success, status_message=message)
 
 
-def spawn_entity(call: Call) -> None:
+def _serve(
+    call: Call,
+    to_request: Callable[[Any], SpawnRequest | DeleteRequest],
+    ok: Callable[[str], str],
+    failed: Callable[[str, FleetError], str],
+) -> None:
+    """Refuse what the request says wrong at once, else ask the engine and answer in Gazebo's words."""
     try:
-        request = spawn_request(call.request)
+        request = to_request(call.request)
     except Refused as e:
         return _respond(call, False, str(e))
     name = request.name
 
     def then(result: Result | FleetError) -> None:
         if isinstance(result, FleetError):
-            return _respond(call, False, spawn_failure(name, result))
-        _respond(call, True, spawn_success(name))
+            return _respond(call, False, failed(name, result))
+        _respond(call, True, ok(name))
 
     call.ask(request, then)
+
+
+def spawn_entity(call: Call) -> None:
+    _serve(call, spawn_request, spawn_success, spawn_failure)
 
 
 def delete_entity(call: Call) -> None:
-    try:
-        request = delete_request(call.request)
-    except Refused as e:
-        return _respond(call, False, str(e))
-    name = request.name
-
-    def then(result: Result | FleetError) -> None:
-        if isinstance(result, FleetError):
-            return _respond(call, False, delete_failure(name, result))
-        _respond(call, True, delete_success(name))
-
-    call.ask(request, then)
+    _serve(call, delete_request, delete_success, delete_failure)
 
 
 def _malformed(call: Call, message: str) -> None:
