@@ -1,0 +1,254 @@
+"""``fleet-map``: build an occupancy map from the fleet's scans and save it as a map_server map.
+
+    fleet-map                               # every robot, until Ctrl-C; writes map.pgm + map.yaml
+    fleet-map -o maps/world --robots TB3_1,TB3_2 --duration 120
+    fleet-map -o maps/world --force         # replace an existing map
+
+It follows the daemon's fleet topics (a tick's odometry and scans of the whole fleet in one
+message each), places every scan at its robot's pose of the same tick plus the lidar's mounting
+offset, and fuses the scans of all the robots it follows into one log-odds grid (grid.py),
+0.05 m a cell as the TurtleBot3 Cartographer setup. It shows its progress while it runs and
+writes, on Ctrl-C or after ``--duration``: ``NAME.pgm`` and ``NAME.yaml`` as nav2's map saver
+does (nav2_map_server loads them as they are), and ``NAME.png``, the map with each robot's path.
+The poses are the daemon's odometry, exact in this simulation (ground truth, as Gazebo's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import queue
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import FrameType
+
+import numpy as np
+
+from clients.api import FleetClient
+from clients.fleet_args import add_daemon_args
+from clients.mapping.grid import Beams, LogOddsGrid
+from protocol import FleetError
+from protocol.errors import ErrorCode
+from protocol.frames import SCAN_OFFSET
+from protocol.mapfile import MapFileError, OccupancyMap, pixels_of, write_map
+from protocol.messages import FleetOdometry, FleetScans
+from protocol.zenoh_config import options_from_args
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_DAEMON = 0, 1, 2, 3
+#: ticks of odometry kept to pair with scans that arrive first
+ODOM_KEPT = 30
+#: what is added around the world's bounds, so walls on the edge are inside the map
+MARGIN_M = 0.5
+PATH_COLOURS = [(228, 26, 28), (55, 126, 184), (77, 175, 74), (152, 78, 163), (255, 127, 0), (166, 86, 40)]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="fleet-map", description="Map the world from the fleet's scans; save a map_server map (pgm + yaml)."
+    )
+    p.add_argument("-o", "--output", default="map", metavar="NAME", help="writes NAME.pgm, NAME.yaml, NAME.png")
+    p.add_argument("--robots", metavar="NS,...", help="namespaces whose scans to use (default: every robot)")
+    p.add_argument("--resolution", type=float, default=0.05, metavar="M", help="metres a cell (default: 0.05)")
+    p.add_argument(
+        "--duration", type=float, default=0.0, metavar="S", help="stop after S wall seconds (default: Ctrl-C)"
+    )
+    p.add_argument("--force", action="store_true", help="replace NAME.pgm / NAME.yaml / NAME.png if they exist")
+    add_daemon_args(p)
+    return p
+
+
+@dataclass
+class Plan:
+    stem: Path
+    robots: set[str] | None
+    resolution: float
+    duration: float
+    force: bool
+
+
+def plan_from_args(args: argparse.Namespace) -> Plan:
+    stem = Path(args.output)
+    if stem.suffix in (".pgm", ".yaml", ".png"):
+        stem = stem.with_suffix("")
+    if not stem.parent.is_dir():
+        raise ValueError(f"{stem.parent} is not a directory: create it first")
+    if not args.force:
+        taken = [p for p in (stem.with_name(stem.name + s) for s in (".pgm", ".yaml", ".png")) if p.exists()]
+        if taken:
+            raise ValueError(f"{taken[0]} already exists: choose another -o, or --force to replace it")
+    if not 0.005 <= args.resolution <= 1.0:
+        raise ValueError(f"--resolution must be in 0.005..1 m, got {args.resolution}")
+    if not args.duration >= 0:
+        raise ValueError(f"--duration must be >= 0, got {args.duration}")
+    robots = None
+    if args.robots is not None:
+        robots = {r.strip().strip("/") for r in args.robots.split(",") if r.strip()}
+        if not robots:
+            raise ValueError("--robots needs at least one namespace")
+    return Plan(stem, robots, args.resolution, args.duration, args.force)
+
+
+@dataclass
+class Mapper:
+    """Pairs each scan with its robot's pose of the same tick and fuses it into the grid."""
+
+    grid: LogOddsGrid
+    robots: set[str] | None
+    models: dict[str, str]
+    poses: dict[tuple[int, int], dict[str, tuple[float, float, float]]] = field(default_factory=dict)
+    waiting: list[FleetScans] = field(default_factory=list)
+    paths: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    beams: Beams | None = None
+
+    def take(self, msg: FleetOdometry | FleetScans) -> None:
+        if isinstance(msg, FleetOdometry):
+            self.on_odometry(msg)
+        else:
+            self.on_scans(msg)
+
+    def on_odometry(self, msg: FleetOdometry) -> None:
+        x, y, yaw = msg.array("x"), msg.array("y"), msg.array("yaw")
+        tick = {}
+        for i, ns in enumerate(msg.namespaces):
+            if self.robots is None or ns in self.robots:
+                tick[ns] = (float(x[i]), float(y[i]), float(yaw[i]))
+                path = self.paths.setdefault(ns, [])
+                if not path or abs(path[-1][0] - tick[ns][0]) + abs(path[-1][1] - tick[ns][1]) > 0.02:
+                    path.append((tick[ns][0], tick[ns][1]))
+        self.poses[(msg.stamp.sec, msg.stamp.nanosec)] = tick
+        while len(self.poses) > ODOM_KEPT:
+            self.poses.pop(next(iter(self.poses)))
+        waiting, self.waiting = self.waiting, []
+        for scans in waiting:
+            self.on_scans(scans)
+
+    def on_scans(self, msg: FleetScans) -> None:
+        poses = self.poses.get((msg.stamp.sec, msg.stamp.nanosec))
+        if poses is None:
+            if len(self.waiting) < ODOM_KEPT:
+                self.waiting.append(msg)  # its tick's odometry is still on its way
+            return
+        if self.beams is None:
+            self.beams = Beams(msg.angle_min, msg.angle_increment, msg.beams, msg.range_min, msg.range_max)
+        rows = msg.ranges_array()
+        for i, ns in enumerate(msg.namespaces):
+            pose = poses.get(ns)
+            if pose is None:
+                continue
+            x, y, yaw = pose
+            ox, oy, _ = SCAN_OFFSET.get(self.models.get(ns, "burger"), SCAN_OFFSET["burger"])
+            sx, sy = x + ox * np.cos(yaw) - oy * np.sin(yaw), y + ox * np.sin(yaw) + oy * np.cos(yaw)
+            self.grid.integrate(sx, sy, yaw, rows[i], self.beams)
+
+
+def picture(grid: OccupancyMap, paths: dict[str, list[tuple[float, float]]], path: Path) -> None:
+    """The map with each robot's path, scaled up so that a small world is not a thumbnail."""
+    from PIL import Image, ImageDraw
+
+    grey = pixels_of(grid)
+    scale = max(1, 800 // max(grid.width, grid.height))
+    image = (
+        Image.fromarray(grey, mode="L")
+        .convert("RGB")
+        .resize((grid.width * scale, grid.height * scale), Image.Resampling.NEAREST)
+    )
+    draw = ImageDraw.Draw(image)
+    x0, y0, _ = grid.origin
+    for k, (_, points) in enumerate(sorted(paths.items())):
+        pixels = [((x - x0) / grid.resolution * scale, (grid.height - (y - y0) / grid.resolution) * scale)
+                  for x, y in points]  # fmt: skip
+        if len(pixels) > 1:
+            draw.line(pixels, fill=PATH_COLOURS[k % len(PATH_COLOURS)], width=max(2, scale // 2))
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    image.save(tmp)
+    tmp.replace(path)
+
+
+def progress_line(mapper: Mapper, elapsed: float) -> str:
+    g = mapper.grid
+    return (f"mapping {elapsed:6.1f} s: {len(mapper.paths)} robots, {g.scans} scans, "
+            f"explored {g.explored_m2():.1f} m²")  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        plan = plan_from_args(args)
+    except ValueError as e:
+        print(f"fleet-map: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+    try:
+        client = FleetClient(prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False))
+        world = client.world()
+        robots = {r.namespace: r.model for r in client.robots()}
+    except FleetError as e:
+        print(f"fleet-map: {e.message}", file=sys.stderr)
+        return EXIT_NO_DAEMON if e.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT) else EXIT_FAILED
+    missing = sorted((plan.robots or set()) - set(robots))
+    if missing:
+        client.close()
+        print(f"fleet-map: error: no live robot with namespace {', '.join(missing)} "
+              f"(live: {', '.join(sorted(robots)) or 'none'})", file=sys.stderr)  # fmt: skip
+        return EXIT_USAGE
+    b = world.bounds
+    grid = LogOddsGrid((b.x_min - MARGIN_M, b.x_max + MARGIN_M, b.y_min - MARGIN_M, b.y_max + MARGIN_M),
+                       plan.resolution)  # fmt: skip
+    mapper = Mapper(grid, plan.robots, robots)
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    client.on_fleet_odom(inbox.put)
+    client.on_fleet_scans(inbox.put)
+    who = "every robot" if plan.robots is None else ", ".join(sorted(plan.robots))
+    print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
+          file=sys.stderr, flush=True)  # fmt: skip
+    t0 = time.monotonic()
+    tty = sys.stderr.isatty()
+    next_report = t0 + (1.0 if tty else 5.0)
+    try:
+        while not stop.is_set():
+            now = time.monotonic()
+            if plan.duration and now - t0 >= plan.duration:
+                break
+            try:
+                mapper.take(inbox.get(timeout=0.1))
+            except queue.Empty:
+                pass
+            if now >= next_report:
+                line = progress_line(mapper, now - t0)
+                print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
+                next_report = now + (1.0 if tty else 5.0)
+    finally:
+        client.close()
+        while not inbox.empty():
+            mapper.take(inbox.get_nowait())
+    if tty:
+        print(file=sys.stderr)
+    occupancy = grid.occupancy()
+    try:
+        pgm, meta = write_map(plan.stem, occupancy, force=plan.force)
+        png = plan.stem.with_name(plan.stem.name + ".png")
+        picture(occupancy, mapper.paths, png)
+    except (MapFileError, OSError) as e:
+        print(f"fleet-map: error: {e}", file=sys.stderr)
+        return EXIT_FAILED
+    cells = occupancy.cells
+    print(
+        f"fleet-map: wrote {meta}, {pgm} and {png}: {occupancy.width}x{occupancy.height} cells of "
+        f"{plan.resolution:g} m, {grid.scans} scans from {len(mapper.paths)} robots, explored "
+        f"{grid.explored_m2():.1f} m² ({np.count_nonzero(cells == 100)} occupied cells)",
+        flush=True,
+    )
+    return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())
