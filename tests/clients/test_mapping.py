@@ -1,0 +1,138 @@
+"""fleet-map: the grid's maths on hand-made scans, and a map of turtlebot3_world made through a real daemon."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from clients.mapping.grid import Beams, LogOddsGrid
+from protocol.control import WorldInfo
+from protocol.mapfile import read_map
+from tests.clients.test_record import wait_subscribed
+from tests.conftest import ROOT, Daemon
+
+LDS = Beams(0.0, 6.28 / 359, 360, 0.12, 3.5)
+
+
+def _wall_scan(distance: float, half_width_deg: float = 60.0) -> np.ndarray:
+    """A wall across the x axis at ``distance`` ahead, seen over ±half_width; nothing elsewhere."""
+    a = np.where(LDS.angles > math.pi, LDS.angles - 2 * math.pi, LDS.angles)
+    return np.where(np.abs(a) < math.radians(half_width_deg), distance / np.cos(a), np.inf).astype(np.float32)
+
+
+def test_a_wall_ahead_is_occupied_and_the_way_to_it_free() -> None:
+    g = LogOddsGrid((-2.0, 2.0, -2.0, 2.0), 0.05)
+    for _ in range(3):  # a miss is weaker evidence than a hit: three looks clear a cell
+        g.integrate(0.0, 0.0, 0.0, _wall_scan(1.0), LDS)
+    cells = g.occupancy().cells
+    row = 40  # y = 0 .. 0.05
+    assert np.nonzero(cells[row] == 100)[0].tolist() == [60]  # x = 1.00 .. 1.05
+    assert (cells[row, 40:60] == 0).all()  # the robot's cell up to the wall
+    assert (cells[row, 61:] == -1).all()  # behind the wall: never seen
+    assert (cells[row, :40] == 0).all()  # behind the robot nothing within 3.5 m: cleared (+inf)
+
+
+def test_one_look_marks_a_wall_and_a_moved_obstacle_fades() -> None:
+    g = LogOddsGrid((-2.0, 2.0, -2.0, 2.0), 0.05)
+    g.integrate(0.0, 0.0, 0.0, _wall_scan(1.0), LDS)
+    assert g.occupancy().cells[40, 60] == 100  # 0.85 > log(0.65/0.35) = 0.62
+    for _ in range(6):  # the wall is gone: the beams now run on to 1.5 m
+        g.integrate(0.0, 0.0, 0.0, _wall_scan(1.5), LDS)
+    cells = g.occupancy().cells
+    assert cells[40, 60] == 0 and cells[40, 70] == 100
+
+
+def test_too_close_says_nothing_and_the_map_edge_is_safe() -> None:
+    g = LogOddsGrid((-1.0, 1.0, -1.0, 1.0), 0.05)
+    r = np.full(360, -np.inf, dtype=np.float32)
+    g.integrate(0.0, 0.0, 0.0, r, LDS)
+    assert (g.occupancy().cells == -1).all() and g.scans == 0
+    g.integrate(0.9, 0.9, 0.0, _wall_scan(3.0), LDS)  # beams run far off the grid
+    assert g.occupancy().cells.shape == (40, 40)
+
+
+def _distance_to_world(points: np.ndarray, world: WorldInfo) -> np.ndarray:
+    best = np.full(len(points), np.inf)
+    for poly in world.polygons:
+        p = np.asarray(poly, dtype=np.float64)
+        a, b = p, np.roll(p, -1, axis=0)
+        ab = b - a
+        t = ((points[:, None, :] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None]
+        closest = a[None] + np.clip(t, 0, 1)[..., None] * ab[None]
+        best = np.minimum(best, np.linalg.norm(points[:, None, :] - closest, axis=-1).min(axis=1))
+    for c in world.circles:
+        best = np.minimum(best, np.abs(np.hypot(points[:, 0] - c.x, points[:, 1] - c.y) - c.radius))
+    return best
+
+
+def test_map_turtlebot3_world_through_the_daemon(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    d = daemon_factory("--lockstep")
+    c = d.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    stem = tmp_path / "tb3_world"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    wait_subscribed(d, "fleet/odometry", proc)
+    wait_subscribed(d, "fleet/scans", proc)
+    seen = []
+    with c.on_fleet_scans(lambda s: seen.append((s.stamp.sec, s.stamp.nanosec))):
+        reply = c.step(300, cmd_vel={"tb3_0": (0.0, 1.0)})  # ten seconds turning on the spot
+        deadline = time.monotonic() + 10
+        while (reply.clock.sec, reply.clock.nanosec) not in seen and time.monotonic() < deadline:
+            time.sleep(0.05)
+    time.sleep(0.2)  # the mapper subscribed on the same daemon: the last scans reached it too
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    assert "fleet-map: wrote" in out and "Traceback" not in err
+    m = read_map(stem.with_name("tb3_world.yaml"))  # as nav2_map_server would read it
+    occupied = np.argwhere(m.cells == 100)
+    assert len(occupied) > 150
+    centres = np.column_stack([m.origin[0] + (occupied[:, 1] + 0.5) * m.resolution,
+                               m.origin[1] + (occupied[:, 0] + 0.5) * m.resolution])  # fmt: skip
+    near = _distance_to_world(centres, c.world()) <= 1.5 * m.resolution
+    assert near.mean() >= 0.95  # occupied cells are walls and pillars
+    with Image.open(stem.with_name("tb3_world.png")) as im:
+        assert im.width >= m.width
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--robots", "ghost"], "no live robot with namespace ghost"),
+        (["--resolution", "0"], "--resolution"),
+        (["-o", "/nonexistent/dir/map"], "is not a directory"),
+    ],
+)
+def test_bad_requests_are_one_line(daemon: Daemon, tmp_path: Path, extra: list[str], message: str) -> None:
+    out = tmp_path / "maps"  # the daemon's log is in tmp_path
+    out.mkdir()
+    args = ["-o", str(out / "m"), *extra] if "-o" not in extra else extra
+    p = subprocess.run([sys.executable, "-m", "clients.mapping.cli", "-e", daemon.endpoint, *args],
+                       capture_output=True, text=True, cwd=ROOT, timeout=30)  # fmt: skip
+    assert p.returncode == 2 and message in p.stderr and "Traceback" not in p.stderr
+    assert list(out.iterdir()) == []
+
+
+def test_an_existing_map_is_kept_without_force(daemon: Daemon, tmp_path: Path) -> None:
+    out = tmp_path / "maps"
+    out.mkdir()
+    (out / "m.yaml").write_text("mine")
+    p = subprocess.run([sys.executable, "-m", "clients.mapping.cli", "-e", daemon.endpoint, "-o", str(out / "m")],
+                       capture_output=True, text=True, cwd=ROOT, timeout=30)  # fmt: skip
+    assert p.returncode == 2 and "--force" in p.stderr
+    assert (out / "m.yaml").read_text() == "mine" and [f.name for f in out.iterdir()] == ["m.yaml"]
