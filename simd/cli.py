@@ -35,7 +35,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--world",
         default="turtlebot3_world",
-        help="world name (turtlebot3_world, turtlebot3_house, empty) or path to a world YAML file",
+        help="world name (turtlebot3_world, turtlebot3_house, empty), a world YAML file, or a map_server map's "
+        "YAML (map.yaml + its image: the occupied cells become walls)",
     )
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
     p.add_argument(
@@ -161,10 +162,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         return fail(str(e))
 
-    from simd.core.worldfile import WorldFileError, load_world
+    from simd.core.mapworld import load_world_or_map
+    from simd.core.worldfile import WorldFileError
 
     try:
-        world = load_world(args.world)
+        world = load_world_or_map(args.world)
     except WorldFileError as e:
         return fail(str(e))
 

@@ -10,6 +10,7 @@ the read-only answers (robots, world, clock, the latest odometry and scans), nev
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -18,8 +19,10 @@ import zenoh
 
 from protocol.codec import Format, decode, encode, media_type, sniff_format
 from protocol.control import ACTIONS, REQUESTS, Request
-from protocol.errors import FleetError
+from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -61,7 +64,14 @@ class Pending:
 
     def ok(self, message: object) -> None:
         try:
-            self.query.reply(self.key, encode(message, self.fmt), encoding=media_type(self.fmt))
+            try:
+                payload = encode(message, self.fmt)
+            except Exception as e:  # our bug: the client hears of it instead of waiting in vain
+                log.exception("cannot encode the reply on %s", self.key)
+                err = FleetError(ErrorCode.INTERNAL, f"internal error: cannot encode the reply: {e}")
+                self.query.reply_err(encode(err.to_reply(), self.fmt), encoding=media_type(self.fmt))
+                return
+            self.query.reply(self.key, payload, encoding=media_type(self.fmt))
         finally:
             self.query.drop()
 
