@@ -21,13 +21,10 @@ from __future__ import annotations
 import argparse
 import os
 import queue
-import signal
 import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 
 import numpy as np
 import numpy.typing as npt
@@ -38,6 +35,7 @@ from clients import ros_source
 from clients.api import FleetClient
 from clients.bag import BagExists, BagWriter
 from clients.fleet_args import add_daemon_args
+from clients.follow import drain, follow, stop_on_signals
 from protocol import FleetError
 from protocol.errors import ErrorCode
 from protocol.frames import static_transforms
@@ -228,13 +226,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"fleet-record: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals()
     client: FleetClient | None = None
     source: ros_source.RosSource | None = None
     session: zenoh.Session | None = None
@@ -270,25 +262,11 @@ def main(argv: list[str] | None = None) -> int:
     if session is not None:
         wanted = ros_source.topic_filter(plan.topics, plan.robots)
         source = ros_source.RosSource(session, plan.domain, wanted, lambda *sample: rec.inbox.put(sample))
-    t0 = time.monotonic()
-    tty = sys.stderr.isatty()
-    next_report = t0 + (1.0 if tty else 5.0)
     print(f"fleet-record: recording {', '.join(sorted(plan.topics))} ({plan.source} source) of "
           f"{'every robot' if plan.robots is None else ', '.join(sorted(plan.robots))} into {plan.output} "
           "(Ctrl-C stops)", file=sys.stderr, flush=True)  # fmt: skip
     try:
-        while not stop.is_set():
-            now = time.monotonic()
-            if plan.duration and now - t0 >= plan.duration:
-                break
-            try:
-                rec.handle(rec.inbox.get(timeout=0.1))
-            except queue.Empty:
-                pass
-            if now >= next_report:
-                line = progress_line(bag, now - t0, rec.inbox.qsize())
-                print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
-                next_report = now + (1.0 if tty else 5.0)
+        wall = follow(rec.inbox, rec.handle, stop, plan.duration, lambda t: progress_line(bag, t, rec.inbox.qsize()))
     finally:  # no more input; what arrived is written
         if client is not None:
             client.close()
@@ -296,15 +274,9 @@ def main(argv: list[str] | None = None) -> int:
             source.close()
         if session is not None:
             session.close()
-        while True:
-            try:
-                rec.handle(rec.inbox.get_nowait())
-            except queue.Empty:
-                break
+        drain(rec.inbox, rec.handle)
         bag.close()
-    if tty:
-        print(file=sys.stderr)
-    print(summary(bag, time.monotonic() - t0), flush=True)
+    print(summary(bag, wall), flush=True)
     return EXIT_OK
 
 

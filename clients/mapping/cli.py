@@ -17,18 +17,15 @@ from __future__ import annotations
 
 import argparse
 import queue
-import signal
 import sys
-import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 
 import numpy as np
 
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
+from clients.follow import drain, follow, stop_on_signals
 from clients.mapping.grid import Beams, LogOddsGrid
 from protocol import FleetError
 from protocol.errors import ErrorCode
@@ -180,13 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         print(f"fleet-map: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    stop = threading.Event()
-
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals()
     try:
         client = FleetClient(prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False))
         world = client.world()
@@ -210,28 +201,11 @@ def main(argv: list[str] | None = None) -> int:
     who = "every robot" if plan.robots is None else ", ".join(sorted(plan.robots))
     print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
           file=sys.stderr, flush=True)  # fmt: skip
-    t0 = time.monotonic()
-    tty = sys.stderr.isatty()
-    next_report = t0 + (1.0 if tty else 5.0)
     try:
-        while not stop.is_set():
-            now = time.monotonic()
-            if plan.duration and now - t0 >= plan.duration:
-                break
-            try:
-                mapper.take(inbox.get(timeout=0.1))
-            except queue.Empty:
-                pass
-            if now >= next_report:
-                line = progress_line(mapper, now - t0)
-                print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)
-                next_report = now + (1.0 if tty else 5.0)
+        follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t))
     finally:
         client.close()
-        while not inbox.empty():
-            mapper.take(inbox.get_nowait())
-    if tty:
-        print(file=sys.stderr)
+        drain(inbox, mapper.take)
     occupancy = grid.occupancy()
     try:
         pgm, meta = write_map(plan.stem, occupancy, force=plan.force)
