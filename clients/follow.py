@@ -38,8 +38,10 @@ def follow(
     stop: threading.Event,
     duration: float,
     progress: Callable[[float], str],
+    every_loop: Callable[[], None] | None = None,
 ) -> float:
-    """Handle messages until ``stop`` or ``duration`` wall seconds (0: no limit); returns the time taken."""
+    """Handle messages until ``stop`` or ``duration`` wall seconds (0: no limit); returns the time
+    taken. ``every_loop`` runs at least ten times a second (a controller's hook)."""
     t0 = time.monotonic()
     tty = sys.stderr.isatty()
     every = 1.0 if tty else 5.0
@@ -52,6 +54,8 @@ def follow(
             handle(inbox.get(timeout=0.1))
         except queue.Empty:
             pass
+        if every_loop is not None:
+            every_loop()
         if now >= next_report:
             line = progress(now - t0)
             print(("\r" + line) if tty else line, end="" if tty else "\n", file=sys.stderr, flush=True)

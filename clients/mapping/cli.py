@@ -18,6 +18,9 @@ from __future__ import annotations
 import argparse
 import queue
 import sys
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,6 +29,7 @@ import numpy as np
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
 from clients.follow import drain, follow, stop_on_signals
+from clients.mapping.explore import Explorer
 from clients.mapping.grid import Beams, LogOddsGrid
 from protocol import FleetError
 from protocol.errors import ErrorCode
@@ -37,6 +41,11 @@ from protocol.zenoh_config import options_from_args
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_DAEMON = 0, 1, 2, 3
 #: ticks of odometry kept to pair with scans that arrive first
 ODOM_KEPT = 30
+#: how often the explorer picks new goals: wall seconds in real time, steps in lockstep
+PLAN_EVERY_S = 0.5
+PLAN_EVERY_STEPS = 5
+#: ticks a lockstep step runs with the commands held (10 Hz of sim time, as a teleop)
+TICKS_A_STEP = 3
 #: what is added around the world's bounds, so walls on the edge are inside the map
 MARGIN_M = 0.5
 PATH_COLOURS = [(228, 26, 28), (55, 126, 184), (77, 175, 74), (152, 78, 163), (255, 127, 0), (166, 86, 40)]
@@ -53,6 +62,15 @@ def build_parser() -> argparse.ArgumentParser:
         "--duration", type=float, default=0.0, metavar="S", help="stop after S wall seconds (default: Ctrl-C)"
     )
     p.add_argument("--force", action="store_true", help="replace NAME.pgm / NAME.yaml / NAME.png if they exist")
+    p.add_argument(
+        "--explore",
+        action="store_true",
+        help="drive the robots to the frontiers of the map until none is reachable (a --lockstep or paused "
+        "daemon is stepped as fast as it goes)",
+    )
+    p.add_argument(
+        "--explore-limit", type=float, default=300.0, metavar="S", help="stop exploring after S sim seconds (300)"
+    )
     add_daemon_args(p)
     return p
 
@@ -64,6 +82,8 @@ class Plan:
     resolution: float
     duration: float
     force: bool
+    explore: bool = False
+    explore_limit: float = 300.0
 
 
 def plan_from_args(args: argparse.Namespace) -> Plan:
@@ -85,7 +105,9 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         robots = {r.strip().strip("/") for r in args.robots.split(",") if r.strip()}
         if not robots:
             raise ValueError("--robots needs at least one namespace")
-    return Plan(stem, robots, args.resolution, args.duration, args.force)
+    if not args.explore_limit > 0:
+        raise ValueError(f"--explore-limit must be > 0, got {args.explore_limit}")
+    return Plan(stem, robots, args.resolution, args.duration, args.force, args.explore, args.explore_limit)
 
 
 @dataclass
@@ -99,6 +121,8 @@ class Mapper:
     waiting: list[FleetScans] = field(default_factory=list)
     paths: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     beams: Beams | None = None
+    latest: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # each robot's newest pose
+    latest_stamp: tuple[int, int] = (-1, 0)
 
     def take(self, msg: FleetOdometry | FleetScans) -> None:
         if isinstance(msg, FleetOdometry):
@@ -116,6 +140,8 @@ class Mapper:
                 if not path or abs(path[-1][0] - tick[ns][0]) + abs(path[-1][1] - tick[ns][1]) > 0.02:
                     path.append((tick[ns][0], tick[ns][1]))
         self.poses[(msg.stamp.sec, msg.stamp.nanosec)] = tick
+        self.latest.update(tick)
+        self.latest_stamp = max(self.latest_stamp, (msg.stamp.sec, msg.stamp.nanosec))
         while len(self.poses) > ODOM_KEPT:
             self.poses.pop(next(iter(self.poses)))
         waiting, self.waiting = self.waiting, []
@@ -164,6 +190,83 @@ def picture(grid: OccupancyMap, paths: dict[str, list[tuple[float, float]]], pat
     tmp.replace(path)
 
 
+def explorer_for(grid: LogOddsGrid, models: dict[str, str], names: list[str]) -> Explorer:
+    """Sized for the widest robot it drives (the footprint's reach), at its speed limits."""
+    waffle = any(models.get(ns, "burger") != "burger" for ns in names)
+    return Explorer(grid.resolution, grid.origin, radius_m=0.22 if waffle else 0.12,
+                    max_linear=0.2, max_angular=1.5 if waffle else 2.0)  # fmt: skip
+
+
+@dataclass
+class Drive:
+    """Sends the explorer's commands: in real time from the follow loop, or by stepping a paused daemon."""
+
+    client: FleetClient
+    mapper: Mapper
+    explorer: Explorer
+    names: list[str]
+    coverage: list[tuple[float, float]]
+    stop: threading.Event
+    next_plan: float = 0.0
+    sim_time: float = 0.0
+
+    def _replan(self) -> bool:
+        """New goals on the current map; False when no robot can reach a frontier."""
+        cells = self.mapper.grid.occupancy().cells
+        poses = {ns: p for ns, p in self.mapper.latest.items() if ns in self.names}
+        if not poses:
+            return True  # no odometry yet
+        self.coverage.append((self.sim_time, self.mapper.grid.explored_m2()))
+        self.explorer.plan(cells, poses)
+        return not self.explorer.finished()
+
+    def _commands(self) -> dict[str, tuple[float, float]]:
+        latest = self.mapper.latest
+        return {ns: self.explorer.command(ns, latest[ns]) for ns in self.names if ns in latest}
+
+    def realtime(self) -> None:
+        now = time.monotonic()
+        sec, nsec = self.mapper.latest_stamp
+        self.sim_time = max(0.0, sec + nsec * 1e-9)
+        if now >= self.next_plan:
+            self.next_plan = now + PLAN_EVERY_S
+            if not self._replan():
+                self.stop.set()
+                return
+        for ns, (v, w) in self._commands().items():
+            self.client.drive(ns, v, w)
+
+    def lockstep(self, inbox: queue.Queue[FleetOdometry | FleetScans], limit: float, duration: float,
+                 progress: Callable[[float], str]) -> None:  # fmt: skip
+        """Step the daemon a few ticks at a time with the commands held, fusing each tick's scans
+        before deciding the next commands: deterministic, and as fast as the daemon runs."""
+        t0 = time.monotonic()
+        steps = 0
+        reply = self.client.step(1)
+        while not self.stop.is_set() and self.sim_time < limit:
+            if duration and time.monotonic() - t0 > duration:
+                break
+            self._catch_up(inbox, (reply.clock.sec, reply.clock.nanosec))
+            self.sim_time = reply.clock.to_seconds()
+            if steps % PLAN_EVERY_STEPS == 0 and not self._replan():
+                break
+            reply = self.client.step(TICKS_A_STEP, cmd_vel=self._commands())
+            steps += 1
+            if steps % 50 == 0:
+                print(progress(time.monotonic() - t0), file=sys.stderr, flush=True)
+        self._catch_up(inbox, (reply.clock.sec, reply.clock.nanosec))
+
+    def _catch_up(self, inbox: queue.Queue[FleetOdometry | FleetScans], stamp: tuple[int, int]) -> None:
+        """Fuse what the daemon sent up to ``stamp`` (its fleet topics arrive beside the reply)."""
+        deadline = time.monotonic() + 5.0
+        while self.mapper.latest_stamp < stamp and time.monotonic() < deadline:
+            try:
+                self.mapper.take(inbox.get(timeout=0.5))
+            except queue.Empty:
+                pass
+        drain(inbox, self.mapper.take)
+
+
 def progress_line(mapper: Mapper, elapsed: float) -> str:
     g = mapper.grid
     return (f"mapping {elapsed:6.1f} s: {len(mapper.paths)} robots, {g.scans} scans, "
@@ -201,8 +304,19 @@ def main(argv: list[str] | None = None) -> int:
     who = "every robot" if plan.robots is None else ", ".join(sorted(plan.robots))
     print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
           file=sys.stderr, flush=True)  # fmt: skip
+    coverage: list[tuple[float, float]] = []
     try:
-        follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t))
+        if plan.explore:
+            names = sorted(plan.robots or robots)
+            drive = Drive(client, mapper, explorer_for(grid, robots, names), names, coverage, stop)
+            if client.clock().paused:
+                drive.lockstep(inbox, plan.explore_limit, plan.duration, lambda t: progress_line(mapper, t))
+            else:
+                follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), drive.realtime)
+                for ns in names:
+                    client.stop(ns)
+        else:
+            follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t))
     finally:
         client.close()
         drain(inbox, mapper.take)
@@ -215,6 +329,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fleet-map: error: {e}", file=sys.stderr)
         return EXIT_FAILED
     cells = occupancy.cells
+    if coverage:
+        steps = coverage[:: max(1, len(coverage) // 8)] + coverage[-1:]
+        print("fleet-map: explored over sim time: " + ", ".join(f"{t:.0f} s {a:.1f} m²" for t, a in steps), flush=True)
     print(
         f"fleet-map: wrote {meta}, {pgm} and {png}: {occupancy.width}x{occupancy.height} cells of "
         f"{plan.resolution:g} m, {grid.scans} scans from {len(mapper.paths)} robots, explored "

@@ -136,3 +136,56 @@ def test_an_existing_map_is_kept_without_force(daemon: Daemon, tmp_path: Path) -
                        capture_output=True, text=True, cwd=ROOT, timeout=30)  # fmt: skip
     assert p.returncode == 2 and "--force" in p.stderr
     assert (out / "m.yaml").read_text() == "mine" and [f.name for f in out.iterdir()] == ["m.yaml"]
+
+
+# -- exploration ------------------------------------------------------------------------------
+
+
+def test_the_wavefront_goes_round_a_wall() -> None:
+    from clients.mapping.explore import wavefront
+
+    passable = np.ones((5, 7), dtype=bool)
+    passable[0:4, 3] = False  # a wall with a gap at the top row
+    dist = wavefront(passable, (0, 0))
+    assert dist[0, 6] == 8  # up to the gap, through it, and back down: diagonal steps allowed
+    assert dist[0, 3] == -1 and dist[4, 3] == 4
+    assert (dist[passable] >= 0).all()
+
+
+def test_robots_share_the_frontiers() -> None:
+    from clients.mapping.explore import Explorer
+
+    cells = np.full((40, 80), -1, dtype=np.int8)
+    cells[5:35, 5:75] = 0  # a free corridor, unknown beyond both ends
+    cells[4, :] = 100
+    cells[35, :] = 100
+    ex = Explorer(0.05, (0.0, 0.0))
+    poses = {"a": (1.9, 1.0, 0.0), "b": (2.1, 1.0, 0.0)}  # side by side in the middle
+    goals = ex.plan(cells, poses)
+    ends = sorted(g.cell[1] for g in goals.values())
+    assert ends[0] < 20 and ends[1] > 60  # one goes left, the other right
+    v, w = ex.command("a", poses["a"])
+    assert v >= 0 and abs(w) <= ex.max_angular
+
+
+def test_one_robot_explores_turtlebot3_world_on_its_own(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    d = daemon_factory("--lockstep", "--no-noise")
+    c = d.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    stem = tmp_path / "explored"
+    p = subprocess.run(
+        [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
+         "--explore-limit", "240"],
+        capture_output=True, text=True, cwd=ROOT, timeout=240,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "explored over sim time" in p.stdout
+    clock = c.clock()
+    assert clock.tick * clock.dt < 240  # it finished: no reachable frontier left before the limit
+    m = read_map(stem.with_name("explored.yaml"))
+    free_m2 = np.count_nonzero(m.cells == 0) * m.resolution**2
+    assert free_m2 > 18  # the arena inside the walls is about 21 m²
+    occupied = np.argwhere(m.cells == 100)
+    centres = np.column_stack([m.origin[0] + (occupied[:, 1] + 0.5) * m.resolution,
+                               m.origin[1] + (occupied[:, 0] + 0.5) * m.resolution])  # fmt: skip
+    assert (_distance_to_world(centres, c.world()) <= 1.5 * m.resolution).mean() >= 0.95
