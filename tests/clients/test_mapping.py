@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from clients.mapping.evaluate import distance_to_world, score
 from clients.mapping.grid import Beams, LogOddsGrid
-from protocol.control import WorldInfo
 from protocol.mapfile import read_map
 from tests.clients.test_record import wait_subscribed
 from tests.conftest import ROOT, Daemon
@@ -61,20 +61,6 @@ def test_too_close_says_nothing_and_the_map_edge_is_safe() -> None:
     assert g.occupancy().cells.shape == (40, 40)
 
 
-def _distance_to_world(points: np.ndarray, world: WorldInfo) -> np.ndarray:
-    best = np.full(len(points), np.inf)
-    for poly in world.polygons:
-        p = np.asarray(poly, dtype=np.float64)
-        a, b = p, np.roll(p, -1, axis=0)
-        ab = b - a
-        t = ((points[:, None, :] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None]
-        closest = a[None] + np.clip(t, 0, 1)[..., None] * ab[None]
-        best = np.minimum(best, np.linalg.norm(points[:, None, :] - closest, axis=-1).min(axis=1))
-    for c in world.circles:
-        best = np.minimum(best, np.abs(np.hypot(points[:, 0] - c.x, points[:, 1] - c.y) - c.radius))
-    return best
-
-
 def test_map_turtlebot3_world_through_the_daemon(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
     d = daemon_factory("--lockstep")
     c = d.client()
@@ -104,7 +90,7 @@ def test_map_turtlebot3_world_through_the_daemon(daemon_factory: Callable[..., D
     assert len(occupied) > 150
     centres = np.column_stack([m.origin[0] + (occupied[:, 1] + 0.5) * m.resolution,
                                m.origin[1] + (occupied[:, 0] + 0.5) * m.resolution])  # fmt: skip
-    near = _distance_to_world(centres, c.world()) <= 1.5 * m.resolution
+    near = distance_to_world(centres, c.world()) <= 1.5 * m.resolution
     assert near.mean() >= 0.95  # occupied cells are walls and pillars
     with Image.open(stem.with_name("tb3_world.png")) as im:
         assert im.width >= m.width
@@ -183,9 +169,5 @@ def test_one_robot_explores_turtlebot3_world_on_its_own(daemon_factory: Callable
     clock = c.clock()
     assert clock.tick * clock.dt < 240  # it finished: no reachable frontier left before the limit
     m = read_map(stem.with_name("explored.yaml"))
-    free_m2 = np.count_nonzero(m.cells == 0) * m.resolution**2
-    assert free_m2 > 18  # the arena inside the walls is about 21 m²
-    occupied = np.argwhere(m.cells == 100)
-    centres = np.column_stack([m.origin[0] + (occupied[:, 1] + 0.5) * m.resolution,
-                               m.origin[1] + (occupied[:, 0] + 0.5) * m.resolution])  # fmt: skip
-    assert (_distance_to_world(centres, c.world()) <= 1.5 * m.resolution).mean() >= 0.95
+    quality = score(m, c.world(), [(-2.0, -0.5)])
+    assert quality["precision"] >= 0.95 and quality["recall"] >= 0.95 and quality["coverage"] >= 0.95, quality

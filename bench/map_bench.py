@@ -1,0 +1,138 @@
+"""How well and how fast fleet-map maps a world, against the world's true geometry.
+
+    python -m bench.map_bench                                  # turtlebot3_world and _house, 1 and 4 robots
+    python -m bench.map_bench --worlds turtlebot3_world --robots 1
+
+For each world and robot count it starts ``simd --lockstep --no-noise``, spawns the robots,
+runs ``fleet-map --explore`` (which steps the daemon itself) and scores the saved map:
+
+- **precision**: the share of occupied cells within one cell (1.5 cells between centres and a
+  wall surface) of a true wall, pillar or block;
+- **recall**: the share of true wall cells (cells a true obstacle covers, next to free space the
+  robots could reach from their spawn) that have an occupied cell of the map within one cell;
+- **coverage**: the share of that reachable free space the map holds as free;
+- the sim seconds and wall seconds exploration took, and the grid's own speed (scans fused a
+  second, to compare with 100 robots' 500 a second).
+
+Every run is printed as it ends and the table at the end; ``--out`` also writes it as JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bench.processes import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+#: spawn poses per world: the TurtleBot3 launches' (four-robot launch for turtlebot3_world)
+POSES = {
+    "turtlebot3_world": [(-2.0, -0.5), (0.5, -2.0), (2.0, 0.5), (-0.5, 2.0)],
+    "turtlebot3_house": [(-2.0, 1.0), (-2.0, -1.0), (2.0, -1.0), (6.0, 1.0)],
+}
+
+
+def run(world_name: str, robots: int, limit: float, tmp: Path) -> dict[str, Any]:
+    from clients.api import FleetClient
+    from clients.mapping.evaluate import score
+    from protocol.mapfile import read_map
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    log = (tmp / f"simd-{world_name}-{robots}.log").open("w")
+    daemon = subprocess.Popen(
+        [sys.executable, "-m", "simd.cli", "--world", world_name, "--lockstep", "--no-noise", "-l", endpoint],
+        stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                client = FleetClient(endpoint, timeout=1.0)
+                client.clock()
+                break
+            except Exception:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+        poses = POSES[world_name][:robots]
+        for i, (x, y) in enumerate(poses):
+            client.spawn(f"tb3_{i}", x, y)
+        world = client.world()
+        stem = tmp / f"{world_name}-{robots}"
+        t0 = time.monotonic()
+        p = subprocess.run(
+            [sys.executable, "-m", "clients.mapping.cli", "-e", endpoint, "-o", str(stem), "--explore",
+             "--explore-limit", str(limit)],
+            capture_output=True, text=True, cwd=ROOT, timeout=900,
+        )  # fmt: skip
+        wall = time.monotonic() - t0
+        if p.returncode != 0:
+            raise RuntimeError(p.stderr[-2000:])
+        sim = client.clock().tick / 30.0
+        m = re.search(r"(\d+) scans from", p.stdout)
+        scores = score(read_map(stem.with_name(stem.name + ".yaml")), world, poses)
+        out = {"world": world_name, "robots": robots, "sim_s": sim, "wall_s": wall,
+               "scans": int(m.group(1)) if m else None, **scores}  # fmt: skip
+        client.close()
+        return out
+    finally:
+        daemon.terminate()
+        daemon.wait(10)
+        log.close()
+
+
+def grid_speed(seconds: float = 2.0) -> float:
+    """Scans a second the grid fuses (360 beams, 3.5 m, in turtlebot3_world's extent)."""
+    from clients.mapping.grid import Beams, LogOddsGrid
+
+    g = LogOddsGrid((-4.0, 5.3, -4.1, 4.1), 0.05)
+    beams = Beams(0.0, 6.28 / 359, 360, 0.12, 3.5)
+    rng = np.random.default_rng(1)
+    ranges = rng.uniform(0.3, 3.5, 360).astype(np.float32)
+    ranges[rng.random(360) < 0.2] = np.inf
+    n, t0 = 0, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        g.integrate(float(rng.uniform(-2, 2)), float(rng.uniform(-2, 2)), float(rng.uniform(-3, 3)), ranges, beams)
+        n += 1
+    return n / (time.perf_counter() - t0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--worlds", nargs="+", default=["turtlebot3_world", "turtlebot3_house"], choices=sorted(POSES))
+    ap.add_argument("--robots", nargs="+", type=int, default=[1, 4], choices=(1, 2, 3, 4))
+    ap.add_argument("--limit", type=float, default=300.0, help="sim seconds of exploration at most (300)")
+    ap.add_argument("--out", help="also write the results as JSON here")
+    args = ap.parse_args(argv)
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="map-bench-") as tmp:
+        for world in args.worlds:
+            for n in args.robots:
+                r = run(world, n, args.limit, Path(tmp))
+                rows.append(r)
+                quality = f"precision {r['precision']:.3f}, recall {r['recall']:.3f}, coverage {r['coverage']:.3f}"
+                print(f"{world}, {n} robot(s): {r['sim_s']:.0f} s sim, {r['wall_s']:.1f} s wall; {quality}", flush=True)
+    speed = grid_speed()
+    print()
+    print("| world | robots | sim s | wall s | precision | recall | free space covered |")
+    print("|---|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        print(f"| {r['world']} | {r['robots']} | {r['sim_s']:.0f} | {r['wall_s']:.1f} | {r['precision']:.3f} "
+              f"| {r['recall']:.3f} | {r['coverage']:.3f} |")  # fmt: skip
+    print(f"\ngrid: {speed:.0f} scans fused a second on one core (100 robots send 500 a second)")
+    if args.out:
+        Path(args.out).write_text(json.dumps({"runs": rows, "grid_scans_per_s": speed}, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
