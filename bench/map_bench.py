@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 #: spawn poses per world: the TurtleBot3 launches' (four-robot launch for turtlebot3_world)
 POSES = {
     "turtlebot3_world": [(-2.0, -0.5), (0.5, -2.0), (2.0, 0.5), (-0.5, 2.0)],
-    "turtlebot3_house": [(-2.0, 1.0), (-2.0, -1.0), (2.0, -1.0), (6.0, 1.0)],
+    "turtlebot3_house": [(-2.0, -0.5), (6.0, 1.0), (1.0, -3.0), (-1.0, 3.0)],  # the launch's, then spread out
 }
 
 
