@@ -30,6 +30,10 @@ HIT = math.log(0.7 / 0.3)
 MISS = math.log(0.4 / 0.6)
 CLAMP = (-2.0, 3.5)
 OCCUPIED_LOGODDS = math.log(0.65 / 0.35)
+#: spacing of the points a beam clears, in cells: a beam that only grazes a cell's corner may
+#: skip it, which its neighbours' beams make up for (half a cell took 1.9x the time: 358 against 680
+#: scans a second on one core, where a hundred robots send 500)
+STEP_CELLS = 0.9
 FREE_LOGODDS = math.log(0.25 / 0.75)
 
 
@@ -62,6 +66,8 @@ class LogOddsGrid:
         self.logodds = np.zeros((self.height, self.width), dtype=np.float32)
         self.seen = np.zeros((self.height, self.width), dtype=bool)
         self.scans = 0
+        self._free = np.zeros((self.height, self.width), dtype=bool)  # scratch masks of one scan
+        self._hit = np.zeros((self.height, self.width), dtype=bool)
 
     def integrate(self, x: float, y: float, yaw: float, ranges: F32, beams: Beams) -> None:
         """One scan taken by a sensor at (x, y) looking along ``yaw`` (world frame)."""
@@ -76,30 +82,49 @@ class LogOddsGrid:
         reach = reach[use]
         dx, dy = np.cos(theta), np.sin(theta)
         res = self.resolution
-        # points every half cell along each beam, up to (not into) its end
-        steps = np.arange(0.0, beams.range_max, res / 2.0)
-        along = steps[None, :] < reach[:, None] - res / 2.0
-        px = x + dx[:, None] * steps[None, :]
-        py = y + dy[:, None] * steps[None, :]
-        free = self._cells(px[along], py[along])
+        # a point every STEP_CELLS of a cell along each beam, up to (not into) its end: each beam's
+        # own count of points, laid end to end (no work for the far part of a short beam)
+        step = STEP_CELLS * res
+        counts = np.maximum(0, np.ceil((reach - res / 2.0) / step)).astype(np.intp)
+        beam = np.repeat(np.arange(len(counts)), counts)
+        d = (np.arange(beam.size) - np.repeat(np.cumsum(counts) - counts, counts)) * step
         hit_beams = valid[use]
-        hits = self._cells(x + dx[hit_beams] * reach[hit_beams], y + dy[hit_beams] * reach[hit_beams])
-        free = np.setdiff1d(free, hits, assume_unique=False)
-        flat = self.logodds.reshape(-1)
-        seen = self.seen.reshape(-1)
-        flat[free] += MISS
-        flat[hits] += HIT
-        np.clip(flat, *CLAMP, out=flat)
-        seen[free] = True
-        seen[hits] = True
+        # the work is done on the window a scan can touch, not on the whole grid
+        span = math.ceil(beams.range_max / res) + 1
+        cr, cc = int((y - self.origin[1]) // res), int((x - self.origin[0]) // res)
+        r0, r1 = max(0, cr - span), min(self.height, cr + span + 1)
+        c0, c1 = max(0, cc - span), min(self.width, cc + span + 1)
+        if r0 >= r1 or c0 >= c1:
+            self.scans += 1
+            return
+        window = (slice(r0, r1), slice(c0, c1))
+        last = np.maximum(reach - res / 2.0, 0.0)  # and the point just short of each beam's end
+        fx = np.concatenate((x + dx[beam] * d, x + dx * last))
+        fy = np.concatenate((y + dy[beam] * d, y + dy * last))
+        free = self._mark(fx, fy, self._free[window], r0, c0)
+        hits = self._mark(x + dx[hit_beams] * reach[hit_beams], y + dy[hit_beams] * reach[hit_beams],
+                          self._hit[window], r0, c0)  # fmt: skip
+        # each cell once per scan, and a cell a beam ends in is a hit whatever crossed it
+        free &= ~hits
+        logodds = self.logodds[window]
+        logodds[free] += MISS
+        logodds[hits] += HIT
+        touched = free | hits
+        np.clip(logodds, *CLAMP, out=logodds, where=touched)
+        self.seen[window] |= touched
+        free[:] = False
+        hits[:] = False
         self.scans += 1
 
-    def _cells(self, px: F64, py: F64) -> npt.NDArray[np.int64]:
-        """Unique flat indices of the cells holding the points (points off the grid dropped)."""
-        col = np.floor((px - self.origin[0]) / self.resolution).astype(np.int64)
-        row = np.floor((py - self.origin[1]) / self.resolution).astype(np.int64)
-        inside = (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
-        return np.unique(row[inside] * self.width + col[inside])
+    def _mark(self, px: F64, py: F64, mask: npt.NDArray[np.bool_], r0: int, c0: int) -> npt.NDArray[np.bool_]:
+        """``mask`` (a window of a scratch grid starting at row ``r0``, column ``c0``; all false on
+        entry) with the cells holding the points set, points outside it dropped: marking a mask
+        counts each cell once without sorting."""
+        col = np.floor((px - self.origin[0]) / self.resolution).astype(np.intp) - c0
+        row = np.floor((py - self.origin[1]) / self.resolution).astype(np.intp) - r0
+        inside = (col >= 0) & (col < mask.shape[1]) & (row >= 0) & (row < mask.shape[0])
+        mask[row[inside], col[inside]] = True
+        return mask
 
     def occupancy(self) -> OccupancyMap:
         """The grid as map_server sees it: 100 occupied, 0 free, -1 unknown."""
