@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -30,17 +30,15 @@ from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
 from clients.follow import drain, follow, stop_on_signals
 from clients.mapping.explore import Explorer
-from clients.mapping.grid import Beams, LogOddsGrid
+from clients.mapping.grid import LogOddsGrid
+from clients.mapping.mapper import Mapper
 from protocol import FleetError
 from protocol.errors import ErrorCode
-from protocol.frames import SCAN_OFFSET
 from protocol.mapfile import MapFileError, OccupancyMap, pixels_of, write_map
 from protocol.messages import FleetOdometry, FleetScans
 from protocol.zenoh_config import options_from_args
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_DAEMON = 0, 1, 2, 3
-#: ticks of odometry kept to pair with scans that arrive first
-ODOM_KEPT = 30
 #: how often the explorer picks new goals: wall seconds in real time, steps in lockstep
 PLAN_EVERY_S = 0.5
 PLAN_EVERY_STEPS = 5
@@ -108,63 +106,6 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
     if not args.explore_limit > 0:
         raise ValueError(f"--explore-limit must be > 0, got {args.explore_limit}")
     return Plan(stem, robots, args.resolution, args.duration, args.force, args.explore, args.explore_limit)
-
-
-@dataclass
-class Mapper:
-    """Pairs each scan with its robot's pose of the same tick and fuses it into the grid."""
-
-    grid: LogOddsGrid
-    robots: set[str] | None
-    models: dict[str, str]
-    poses: dict[tuple[int, int], dict[str, tuple[float, float, float]]] = field(default_factory=dict)
-    waiting: list[FleetScans] = field(default_factory=list)
-    paths: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
-    beams: Beams | None = None
-    latest: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # each robot's newest pose
-    latest_stamp: tuple[int, int] = (-1, 0)
-
-    def take(self, msg: FleetOdometry | FleetScans) -> None:
-        if isinstance(msg, FleetOdometry):
-            self.on_odometry(msg)
-        else:
-            self.on_scans(msg)
-
-    def on_odometry(self, msg: FleetOdometry) -> None:
-        x, y, yaw = msg.array("x"), msg.array("y"), msg.array("yaw")
-        tick = {}
-        for i, ns in enumerate(msg.namespaces):
-            if self.robots is None or ns in self.robots:
-                tick[ns] = (float(x[i]), float(y[i]), float(yaw[i]))
-                path = self.paths.setdefault(ns, [])
-                if not path or abs(path[-1][0] - tick[ns][0]) + abs(path[-1][1] - tick[ns][1]) > 0.02:
-                    path.append((tick[ns][0], tick[ns][1]))
-        self.poses[(msg.stamp.sec, msg.stamp.nanosec)] = tick
-        self.latest.update(tick)
-        self.latest_stamp = max(self.latest_stamp, (msg.stamp.sec, msg.stamp.nanosec))
-        while len(self.poses) > ODOM_KEPT:
-            self.poses.pop(next(iter(self.poses)))
-        waiting, self.waiting = self.waiting, []
-        for scans in waiting:
-            self.on_scans(scans)
-
-    def on_scans(self, msg: FleetScans) -> None:
-        poses = self.poses.get((msg.stamp.sec, msg.stamp.nanosec))
-        if poses is None:
-            if len(self.waiting) < ODOM_KEPT:
-                self.waiting.append(msg)  # its tick's odometry is still on its way
-            return
-        if self.beams is None:
-            self.beams = Beams(msg.angle_min, msg.angle_increment, msg.beams, msg.range_min, msg.range_max)
-        rows = msg.ranges_array()
-        for i, ns in enumerate(msg.namespaces):
-            pose = poses.get(ns)
-            if pose is None:
-                continue
-            x, y, yaw = pose
-            ox, oy, _ = SCAN_OFFSET.get(self.models.get(ns, "burger"), SCAN_OFFSET["burger"])
-            sx, sy = x + ox * np.cos(yaw) - oy * np.sin(yaw), y + ox * np.sin(yaw) + oy * np.cos(yaw)
-            self.grid.integrate(sx, sy, yaw, rows[i], self.beams)
 
 
 def picture(grid: OccupancyMap, paths: dict[str, list[tuple[float, float]]], path: Path) -> None:
