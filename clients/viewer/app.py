@@ -32,6 +32,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from clients.api import DEFAULT_TIMEOUT, FleetClient
 from clients.viewer.decimate import View
 from clients.viewer.feed import Feed
+from clients.viewer.live_map import LiveMap
 from clients.viewer.snapshot import render, take_snapshot
 from clients.viewer.state import FleetState
 from protocol.errors import FleetError
@@ -148,9 +149,10 @@ class FrameStream:
             await self.ws.send_bytes(data)
 
 
-def create_app(state: FleetState, rate: float = DEFAULT_RATE) -> Starlette:
+def create_app(state: FleetState, rate: float = DEFAULT_RATE, live_map: LiveMap | None = None) -> Starlette:
     """The viewer's web app: ``/`` the page, ``/ws`` its frames, ``/snapshot.png`` a PNG of
-    the current state (``?size=N``), ``/api/counts`` how many robots it knows."""
+    the current state (``?size=N``), ``/api/counts`` how many robots it knows, and with a live
+    map ``/map.png`` (404 without one)."""
 
     async def index(request: Request) -> FileResponse:
         return FileResponse(STATIC / "index.html")
@@ -177,22 +179,30 @@ def create_app(state: FleetState, rate: float = DEFAULT_RATE) -> Starlette:
     async def counts(request: Request) -> JSONResponse:
         return JSONResponse(state.counts())
 
+    async def map_png(request: Request) -> Response:
+        if live_map is None:
+            return Response("no map layer: start fleet-view with --map", status_code=404)
+        data, headers = await run_in_threadpool(live_map.png)
+        return Response(data, media_type="image/png", headers=headers)
+
     return Starlette(
         routes=[
             Route("/", index),
             WebSocketRoute("/ws", frames),
             Route("/snapshot.png", snapshot_png),
             Route("/api/counts", counts),
+            Route("/map.png", map_png),
             Mount("/static", StaticFiles(directory=STATIC), name="static"),
         ]
     )
 
 
-def serve(client: FleetClient, host: str, port: int, rate: float) -> None:
+def serve(client: FleetClient, host: str, port: int, rate: float, with_map: bool = False) -> None:
     """Run the web server until Ctrl-C or SIGTERM."""
     state = FleetState()
     feed = Feed(client, state)
     feed.start()
+    live_map = feed.add_live_map() if with_map else None
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         sock = socket.socket(family, socket.SOCK_STREAM)
@@ -205,7 +215,7 @@ def serve(client: FleetClient, host: str, port: int, rate: float) -> None:
         url_host = f"[{host}]" if family == socket.AF_INET6 else host
         print(f"fleet-view: http://{url_host}:{sock.getsockname()[1]}/  (Ctrl-C to stop)", flush=True)
         config = uvicorn.Config(
-            create_app(state, rate),
+            create_app(state, rate, live_map),
             log_level="warning",
             ws="websockets-sansio",
             lifespan="off",
@@ -241,6 +251,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="frames per second pushed to each page (default: %(default)s)",
     )
     p.add_argument("--snapshot", type=Path, metavar="OUT.png", help="write one PNG snapshot and exit")
+    p.add_argument(
+        "--map",
+        action="store_true",
+        help="build the occupancy map from the robots' scans and draw it under them, live (as fleet-map)",
+    )
     p.add_argument(
         "--size",
         type=int,
@@ -282,7 +297,7 @@ def main(argv: list[str] | None = None) -> int:
             n = take_snapshot(client, args.snapshot, args.size, args.timeout)
             print(f"fleet-view: wrote {args.snapshot} ({n} robot{'s' if n != 1 else ''})", flush=True)
             return 0
-        serve(client, args.host, args.port, args.rate)
+        serve(client, args.host, args.port, args.rate, with_map=args.map)
         return 0
     except KeyboardInterrupt:
         return 0

@@ -8,6 +8,7 @@ import logging
 import threading
 
 from clients.api import FleetClient, Subscription
+from clients.viewer.live_map import LiveMap
 from clients.viewer.state import FleetState
 from protocol.errors import FleetError
 
@@ -25,6 +26,7 @@ class Feed:
         self._stop = threading.Event()
         self._subs: list[Subscription] = []
         self._thread = threading.Thread(target=self._records_loop, name="fleet-view-records", daemon=True)
+        self._live_map: LiveMap | None = None
 
     def start(self) -> None:
         self.state.world = self.client.world()
@@ -35,6 +37,15 @@ class Feed:
         self._subs.append(self.client.on_fleet_scans(self.state.on_fleet_scans))
         self._thread.start()
 
+    def add_live_map(self) -> LiveMap:
+        """Also build the occupancy map from the scans the feed receives (``fleet-view --map``)."""
+        assert self.state.world is not None, "start() first"
+        live = LiveMap(self.state.world)
+        self._live_map = live
+        self._subs.append(self.client.on_fleet_odom(live.on_fleet_odom))
+        self._subs.append(self.client.on_fleet_scans(live.on_fleet_scans))
+        return live
+
     def _records_loop(self) -> None:
         wanted = self.state.records_wanted
         while not self._stop.is_set():
@@ -43,7 +54,10 @@ class Feed:
             wanted.clear()
             self._stop.wait(0.05)  # let a burst of spawns arrive, then ask once
             try:
-                self.state.apply_records(self.client.robots())
+                records = self.client.robots()
+                self.state.apply_records(records)
+                if self._live_map is not None:  # the lidar's mounting offset depends on the model
+                    self._live_map.set_models({r.namespace: r.model for r in records})
             except FleetError as e:
                 log.warning("could not list robots: %s", e)
                 self._stop.wait(0.5)

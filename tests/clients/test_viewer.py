@@ -13,6 +13,7 @@ import subprocess
 import sys
 import threading
 import time
+import urllib.error
 import urllib.request
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -434,3 +435,49 @@ def test_page_frame_rate_with_100_robots(
     )
     assert st["robots"] == 100 and st["trails"] > 0 and st["scans"] > 0
     assert fps > 2  # a loose sanity bound (shared CI machines vary); the number is reported above
+
+
+def test_the_map_layer_grows_under_the_robots(
+    daemon_factory: Callable[..., Daemon], viewer_factory: Callable[..., Viewer], browser: Chromium
+) -> None:
+    """fleet-view --map: /map.png is the grid the scans build, placed by its headers, drawn by the page."""
+    d = daemon_factory("--lockstep")
+    c = d.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    v = viewer_factory(d, "--map")
+    browser.navigate(v.url)
+    browser.wait_for("viewerStats.robots === 1", 15)
+    deadline = time.monotonic() + 20
+    scans = 0
+    while scans < 10 and time.monotonic() < deadline:  # the viewer's subscription needs a moment
+        c.step(30)
+        with urllib.request.urlopen(v.url + "map.png", timeout=5) as r:
+            scans = int(r.headers["X-Map-Scans"])
+    assert scans >= 10
+    with urllib.request.urlopen(v.url + "map.png", timeout=5) as r:
+        x0, _ = (float(t) for t in r.headers["X-Map-Origin"].split(","))
+        res = float(r.headers["X-Map-Resolution"])
+        layer = np.asarray(Image.open(io.BytesIO(r.read())))
+    walls = np.argwhere(layer[:, :, 3] == 235)
+    assert len(walls) > 50 and (layer[:, :, 3] == 110).sum() > 1000  # walls and free space
+    # a wall cell is where a wall is: the hexagon's left corner, (-2.93, 0), lies at the left edge of the walls
+    xs = x0 + (walls[:, 1] + 0.5) * res
+    assert abs(xs.min() - (-2.93)) < 0.1
+    assert (layer.shape[0] * res, layer.shape[1] * res) == pytest.approx((8.2, 9.3), abs=0.06)  # bounds + 0.5 m
+    browser.wait_for("viewerStats.mapScans >= 10", 10)  # the page fetched it too, and draws it
+
+
+def test_without_map_there_is_no_layer(daemon: Daemon, viewer_factory: Callable[..., Viewer]) -> None:
+    v = viewer_factory(daemon)
+    deadline = time.monotonic() + 15
+    while True:  # the server listens a moment after it prints its address
+        try:
+            urllib.request.urlopen(v.url + "api/counts", timeout=5).close()
+            break
+        except urllib.error.URLError:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+    with pytest.raises(urllib.error.HTTPError) as e:
+        urllib.request.urlopen(v.url + "map.png", timeout=5)
+    assert e.value.code == 404
+    e.value.close()

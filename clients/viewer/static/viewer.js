@@ -33,6 +33,7 @@
     opts: { scans: true, trails: true, labels: true },
     dirty: true,
     ws: null,
+    map: null,            // the live map layer (fleet-view --map): {img, x0, y0, res}
   };
 
   const stats = {
@@ -479,6 +480,33 @@
     ctx.setTransform(S.dpr, 0, 0, S.dpr, 0, 0);
   }
 
+  // ---- the live map layer (fleet-view --map): /map.png once a second, drawn under the robots ----
+  async function fetchMap() {
+    try {
+      const r = await fetch("/map.png", { cache: "no-store" });
+      if (r.status === 404) return false;  // no map layer on this viewer: stop asking
+      if (!r.ok) return true;
+      const [x0, y0] = (r.headers.get("X-Map-Origin") || "0,0").split(",").map(Number);
+      const res = Number(r.headers.get("X-Map-Resolution") || "0.05");
+      const img = await createImageBitmap(await r.blob());
+      S.map = { img, x0, y0, res };
+      stats.mapScans = Number(r.headers.get("X-Map-Scans") || "0");
+      S.dirty = true;
+    } catch (e) { /* the server is restarting: try again */ }
+    return true;
+  }
+  (async function mapLoop() {
+    if (await fetchMap()) setTimeout(mapLoop, 1000);
+  })();
+
+  function drawMap() {
+    const m = S.map;
+    if (!m) return;
+    const w = m.img.width * m.res, h = m.img.height * m.res;
+    ctx.imageSmoothingEnabled = false;
+    ctx.drawImage(m.img, sx(m.x0), sy(m.y0 + h), w * S.view.scale, h * S.view.scale);
+  }
+
   function gridStep() {
     for (const s of [0.1, 0.2, 0.5, 1, 2, 5, 10, 20, 50, 100]) if (s * S.view.scale >= 36) return s;
     return 200;
@@ -496,6 +524,7 @@
       if (p) { S.view.cx = p.x; S.view.cy = p.y; sendView(); }
     }
     drawWorld();
+    drawMap();
     const f = S.frame;
     const meta = S.meta;
     if (f && meta) {
