@@ -12,16 +12,13 @@ import numpy as np
 import numpy.typing as npt
 
 from clients.viewer.decimate import TRAIL_MAX_POINTS
+from protocol.frames import SCAN_OFFSET
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
 
-#: ``base_scan`` in ``base_footprint`` (x, y) per model, from the TurtleBot3 URDFs.
-LIDAR_OFFSET: dict[str, tuple[float, float]] = {
-    "burger": (-0.032, 0.0),
-    "waffle": (-0.064, 0.0),
-    "waffle_pi": (-0.064, 0.0),
-}
+#: ``base_scan`` in ``base_footprint`` (x, y) per model (protocol/frames.py, from the URDFs).
+LIDAR_OFFSET: dict[str, tuple[float, float]] = {model: (x, y) for model, (x, y, _) in SCAN_OFFSET.items()}
 
 TRAIL_SECONDS = 5.0  # sim seconds of trail kept per robot
 TRAIL_MIN_STEP = 0.03  # m between stored trail points
