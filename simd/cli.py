@@ -54,6 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--no-noise", action="store_true", help="turn the lidar noise off")
     p.add_argument(
+        "--odom-noise",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="wheel slip: each wheel's travel off by F times a normal draw (seeded), so odometry drifts from the "
+        "true pose as on a real robot (e.g. 0.05); fleet list keeps the true pose (default: 0, exact odometry)",
+    )
+    p.add_argument(
         "--cmd-timeout",
         type=float,
         default=0.5,
@@ -156,6 +164,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--max-robots must be >= 1")
     if args.seed < 0:
         return fail("--seed must be >= 0")
+    if not 0.0 <= args.odom_noise <= 0.5:
+        return fail("--odom-noise must be in 0..0.5 (a fraction of each wheel's travel)")
     try:
         keys = Keys(args.prefix)
         ros_domain, ros_distro = ros_settings(args, os.environ) if args.ros2 else (0, "jazzy")
@@ -192,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             noise=not args.no_noise,
             cmd_timeout=args.cmd_timeout,
             max_robots=args.max_robots,
+            odom_noise=args.odom_noise,
         ),
     )
     ros_session = None

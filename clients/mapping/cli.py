@@ -61,6 +61,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--force", action="store_true", help="replace NAME.pgm / NAME.yaml / NAME.png if they exist")
     p.add_argument(
+        "--no-matching",
+        action="store_true",
+        help="fuse each scan at its odometry's pose as it is (default: correct the pose by scan matching "
+        "against the map first, which keeps maps sharp when odometry drifts)",
+    )
+    p.add_argument(
         "--explore",
         action="store_true",
         help="drive the robots to the frontiers of the map until none is reachable (a --lockstep or paused "
@@ -82,6 +88,7 @@ class Plan:
     force: bool
     explore: bool = False
     explore_limit: float = 300.0
+    matching: bool = True
 
 
 def plan_from_args(args: argparse.Namespace) -> Plan:
@@ -105,7 +112,10 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
             raise ValueError("--robots needs at least one namespace")
     if not args.explore_limit > 0:
         raise ValueError(f"--explore-limit must be > 0, got {args.explore_limit}")
-    return Plan(stem, robots, args.resolution, args.duration, args.force, args.explore, args.explore_limit)
+    return Plan(
+        stem, robots, args.resolution, args.duration, args.force, args.explore, args.explore_limit,
+        not args.no_matching,
+    )  # fmt: skip
 
 
 def picture(grid: OccupancyMap, paths: dict[str, list[tuple[float, float]]], path: Path) -> None:
@@ -238,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     b = world.bounds
     grid = LogOddsGrid((b.x_min - MARGIN_M, b.x_max + MARGIN_M, b.y_min - MARGIN_M, b.y_max + MARGIN_M),
                        plan.resolution)  # fmt: skip
-    mapper = Mapper(grid, plan.robots, robots)
+    mapper = Mapper(grid, plan.robots, robots, matching=plan.matching)
     inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
     client.on_fleet_odom(inbox.put)
     client.on_fleet_scans(inbox.put)

@@ -8,11 +8,13 @@ is placed at the robot's pose plus the lidar's mounting offset of its model
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from clients.mapping.grid import Beams, LogOddsGrid
+from clients.mapping.match import match
 from protocol.frames import SCAN_OFFSET
 from protocol.messages import FleetOdometry, FleetScans
 
@@ -33,6 +35,24 @@ class Mapper:
     beams: Beams | None = None
     latest: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # each robot's newest pose
     latest_stamp: tuple[int, int] = (-1, 0)
+    #: match each scan against the map before fusing it (scan matching corrects drifting odometry)
+    matching: bool = True
+    #: per robot, the map frame's pose of its odometry frame (x, y, yaw): what scan matching learned
+    corrections: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+
+    def corrected(self, ns: str, pose: tuple[float, float, float]) -> tuple[float, float, float]:
+        """An odometry pose in the map's frame."""
+        cx, cy, cth = self.corrections.get(ns, (0.0, 0.0, 0.0))
+        x, y, yaw = pose
+        c, s = math.cos(cth), math.sin(cth)
+        return cx + c * x - s * y, cy + s * x + c * y, math.atan2(math.sin(yaw + cth), math.cos(yaw + cth))
+
+    def _learn(self, ns: str, odom: tuple[float, float, float], true_in_map: tuple[float, float, float]) -> None:
+        """The correction that takes ``odom`` to ``true_in_map``."""
+        x, y, yaw = true_in_map
+        cth = yaw - odom[2]
+        c, s = math.cos(cth), math.sin(cth)
+        self.corrections[ns] = (x - (c * odom[0] - s * odom[1]), y - (s * odom[0] + c * odom[1]), cth)
 
     def take(self, msg: FleetOdometry | FleetScans) -> None:
         if isinstance(msg, FleetOdometry):
@@ -46,11 +66,12 @@ class Mapper:
         for i, ns in enumerate(msg.namespaces):
             if self.robots is None or ns in self.robots:
                 tick[ns] = (float(x[i]), float(y[i]), float(yaw[i]))
+                here = self.corrected(ns, tick[ns])
+                self.latest[ns] = here
                 path = self.paths.setdefault(ns, [])
-                if not path or abs(path[-1][0] - tick[ns][0]) + abs(path[-1][1] - tick[ns][1]) > 0.02:
-                    path.append((tick[ns][0], tick[ns][1]))
+                if not path or abs(path[-1][0] - here[0]) + abs(path[-1][1] - here[1]) > 0.02:
+                    path.append((here[0], here[1]))
         self.poses[(msg.stamp.sec, msg.stamp.nanosec)] = tick
-        self.latest.update(tick)
         self.latest_stamp = max(self.latest_stamp, (msg.stamp.sec, msg.stamp.nanosec))
         while len(self.poses) > ODOM_KEPT:
             self.poses.pop(next(iter(self.poses)))
@@ -71,7 +92,10 @@ class Mapper:
             pose = poses.get(ns)
             if pose is None:
                 continue
-            x, y, yaw = pose
             ox, oy, _ = SCAN_OFFSET.get(self.models.get(ns, "burger"), SCAN_OFFSET["burger"])
+            x, y, yaw = self.corrected(ns, pose)
+            if self.matching:
+                x, y, yaw = match(self.grid, (x, y, yaw), (ox, oy), rows[i], self.beams)
+                self._learn(ns, pose, (x, y, yaw))
             sx, sy = x + ox * np.cos(yaw) - oy * np.sin(yaw), y + ox * np.sin(yaw) + oy * np.cos(yaw)
             self.grid.integrate(sx, sy, yaw, rows[i], self.beams)

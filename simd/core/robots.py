@@ -66,6 +66,10 @@ class RobotTable:
     vx: F64 = _column(np.float64)
     vy: F64 = _column(np.float64)
     wz: F64 = _column(np.float64)
+    # the pose the wheels report (odometry): the true pose unless --odom-noise makes them slip
+    odom_x: F64 = _column(np.float64)
+    odom_y: F64 = _column(np.float64)
+    odom_yaw: F64 = _column(np.float64)
     # the model, copied per row so that mixed fleets compute in one pass
     sep: F64 = _column(np.float64)
     max_v: F64 = _column(np.float64)

@@ -57,6 +57,15 @@ class SimConfig:
     #: cast the scans on a thread of their own, beside the next tick's physics (both release
     #: the GIL): the same scans, bit for bit, since the lidar's jobs run in tick order
     lidar_thread: bool = True
+    #: wheel slip: each wheel's travel in a tick is off by this fraction, times a standard normal
+    #: draw (its own seeded generator), so the odometry a robot reports drifts from its true
+    #: pose as a real robot's does; 0 = exact odometry (ground truth, as Gazebo's default)
+    odom_noise: float = 0.0
+
+
+def _slip_rng(seed: int) -> np.random.Generator:
+    """The wheel-slip draws' own generator: the lidar noise's stream stays as it was."""
+    return np.random.default_rng(np.random.SeedSequence([seed, 1]))
 
 
 def wrap_angle(a: float) -> float:
@@ -77,6 +86,7 @@ class Simulation:
         self.epoch = 0  # resets so far
         self._seed = self.config.seed
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
+        self.slip_rng = _slip_rng(self._seed)
         self.robots = RobotTable()
         self._next_rid = 0
         self._phase_load = [0] * self.config.scan_every
@@ -116,6 +126,7 @@ class Simulation:
             angular_velocity=float(t.wz[i]),
             spawn_pose=robot.spawn_pose,
             lateral_velocity=float(t.vy[i]),
+            odom=(float(t.odom_x[i]), float(t.odom_y[i]), float(t.odom_yaw[i])),
         )
 
     def states(self) -> list[RobotState]:
@@ -194,6 +205,9 @@ class Simulation:
             x=x,
             y=y,
             yaw=yaw,
+            odom_x=x,
+            odom_y=y,
+            odom_yaw=yaw,
             sep=model.wheel_separation,
             max_v=model.max_linear_velocity,
             max_w=model.max_angular_velocity,
@@ -254,6 +268,7 @@ class Simulation:
             self._seed = seed
         self._finish_scans()  # the lidar draws noise from the generator about to be replaced
         self.rng = np.random.default_rng(np.random.SeedSequence(self._seed))
+        self.slip_rng = _slip_rng(self._seed)
         self.tick = 0
         self.epoch += 1
         t = self.robots
@@ -264,6 +279,7 @@ class Simulation:
             x[i], y[i], yaw[i] = r.spawn_pose
             self.physics.place(r.rid, *r.spawn_pose)
         t.x, t.y, t.yaw = x, y, yaw
+        t.odom_x, t.odom_y, t.odom_yaw = x.copy(), y.copy(), yaw.copy()
         t.vx, t.vy, t.wz = np.zeros(n), np.zeros(n), np.zeros(n)
         for a in (t.target_v, t.target_w, t.wheel_l, t.wheel_r):
             a[:] = 0.0
@@ -279,11 +295,16 @@ class Simulation:
         v, w, dx, dy = drive.advance(self.tick, cfg.cmd_timeout, dt, t)
         self.physics.step(t.rid, dx / dt, dy / dt, w, dt)
         x, y, yaw = self.physics.poses(t.rid)
+        old_x, old_y, old_yaw = t.x, t.y, t.yaw
         # reported twist: the wheels' when motion was free, the achieved motion otherwise
         t.vx, t.vy, t.wz, t.yaw = drive.report_twist(
             dt, _FREE_MOTION_TOLERANCE, t.x, t.y, t.yaw, x, y, yaw, v, w, dx, dy
         )
         t.x, t.y = x, y
+        if cfg.odom_noise > 0.0:
+            self._slip(old_x, old_y, old_yaw)
+        else:  # exact odometry: the same arrays, no work
+            t.odom_x, t.odom_y, t.odom_yaw = t.x, t.y, t.yaw
         self.tick += 1
 
         due = np.flatnonzero((self.tick - t.phase) % cfg.scan_every == 0)
@@ -299,9 +320,9 @@ class Simulation:
             tick=self.tick,
             time=self.time,
             namespaces=t.namespaces,
-            x=t.x,
-            y=t.y,
-            yaw=t.yaw,
+            x=t.odom_x,
+            y=t.odom_y,
+            yaw=t.odom_yaw,
             linear_x=t.vx,
             linear_y=t.vy,
             angular_z=t.wz,
@@ -309,6 +330,23 @@ class Simulation:
             scan_rows=scans,
             epoch=self.epoch,
         )
+
+    def _slip(self, old_x: F64, old_y: F64, old_yaw: F64) -> None:
+        """Odometry from the wheels' travel with slip: each wheel's share of the tick's true motion
+        (forward along the old heading, and the turn) off by ``odom_noise`` times a normal draw;
+        sideways motion (a robot pushed) is not seen by the wheels at all."""
+        t = self.robots
+        n = len(t)
+        ds = (t.x - old_x) * np.cos(old_yaw) + (t.y - old_y) * np.sin(old_yaw)
+        dth = np.arctan2(np.sin(t.yaw - old_yaw), np.cos(t.yaw - old_yaw))
+        half = dth * t.sep / 2.0
+        slip = 1.0 + self.config.odom_noise * self.slip_rng.standard_normal((2, n))
+        left, right = (ds - half) * slip[0], (ds + half) * slip[1]
+        ds_o, dth_o = (left + right) / 2.0, (right - left) / t.sep
+        mid = t.odom_yaw + dth_o / 2.0
+        t.odom_x = t.odom_x + ds_o * np.cos(mid)  # new arrays: a snapshot may still hold the old
+        t.odom_y = t.odom_y + ds_o * np.sin(mid)
+        t.odom_yaw = np.arctan2(np.sin(t.odom_yaw + dth_o), np.cos(t.odom_yaw + dth_o))
 
     def _scan(self, rows: I64, x: F64, y: F64, yaw: F64, rid: I64, outline: F64, lidar_off: F64) -> F32:
         """The scans of the robots in ``rows``, against every robot's outline at (x, y, yaw)."""

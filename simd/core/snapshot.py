@@ -35,11 +35,20 @@ class RobotState:
     angular_velocity: float
     spawn_pose: tuple[float, float, float]
     lateral_velocity: float = 0.0  # body-frame y: nonzero only while pushed sideways
+    #: the pose its odometry reports (x, y, yaw): the true pose above unless --odom-noise
+    odom: tuple[float, float, float] | None = None
+
+    @property
+    def odom_pose(self) -> tuple[float, float, float]:
+        return self.odom if self.odom is not None else (self.x, self.y, self.yaw)
 
 
 @dataclass(frozen=True, slots=True, kw_only=True)
 class TickSnapshot:
     """What one tick measured: odometry of every robot, scans of those due.
+
+    ``x``, ``y`` and ``yaw`` are the odometry's pose: the true pose, unless the wheels slip
+    (``SimConfig.odom_noise``); the scans are taken from the true pose.
 
     Rows of the odometry columns follow ``namespaces``; rows of ``scans`` follow
     ``scan_namespaces``. ``epoch`` counts resets: two snapshots with the same tick number

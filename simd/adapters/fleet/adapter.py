@@ -91,8 +91,9 @@ class FleetAdapter:
         stamp = result.clock.clock
         observations: dict[str, Observation] = {}
         for key, s in result.states.items():
+            x, y, yaw = s.odom_pose  # what its odometry topic says (drifting with --odom-noise)
             odom = convert.odometry(
-                s.namespace, stamp, s.x, s.y, s.yaw, s.linear_velocity, s.lateral_velocity, s.angular_velocity
+                s.namespace, stamp, x, y, yaw, s.linear_velocity, s.lateral_velocity, s.angular_velocity
             )
             row = result.scans.get(key)
             scan = None

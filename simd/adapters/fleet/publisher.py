@@ -128,7 +128,7 @@ class Publisher:
         )
         self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
         self._odom_puts = ([], [])
-        first = encode(convert.odometry(ns, Time.from_seconds(time), state.x, state.y, state.yaw, 0.0, 0.0, 0.0))
+        first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
             self._gone.discard(ns)
