@@ -3,7 +3,8 @@
     python -m bench.map_bench                                  # turtlebot3_world and _house, 1 and 4 robots
     python -m bench.map_bench --worlds turtlebot3_world --robots 1
 
-For each world and robot count it starts ``simd --lockstep --no-noise``, spawns the robots,
+For each world, robot count and odometry noise it starts ``simd --lockstep --no-noise
+--odom-noise F``, spawns the robots,
 runs ``fleet-map --explore`` (which steps the daemon itself) and scores the saved map:
 
 - **precision**: the share of occupied cells within one cell (1.5 cells between centres and a
@@ -41,7 +42,7 @@ POSES = {
 }
 
 
-def run(world_name: str, robots: int, limit: float, tmp: Path) -> dict[str, Any]:
+def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float = 0.0) -> dict[str, Any]:
     from clients.api import FleetClient
     from clients.mapping.evaluate import score
     from protocol.mapfile import read_map
@@ -49,7 +50,8 @@ def run(world_name: str, robots: int, limit: float, tmp: Path) -> dict[str, Any]
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     log = (tmp / f"simd-{world_name}-{robots}.log").open("w")
     daemon = subprocess.Popen(
-        [sys.executable, "-m", "simd.cli", "--world", world_name, "--lockstep", "--no-noise", "-l", endpoint],
+        [sys.executable, "-m", "simd.cli", "--world", world_name, "--lockstep", "--no-noise", "-l", endpoint,
+         "--odom-noise", str(odom_noise)],
         stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
     )  # fmt: skip
     try:
@@ -80,7 +82,7 @@ def run(world_name: str, robots: int, limit: float, tmp: Path) -> dict[str, Any]
         sim = client.clock().tick / 30.0
         m = re.search(r"(\d+) scans from", p.stdout)
         scores = score(read_map(stem.with_name(stem.name + ".yaml")), world, poses)
-        out = {"world": world_name, "robots": robots, "sim_s": sim, "wall_s": wall,
+        out = {"world": world_name, "robots": robots, "odom_noise": odom_noise, "sim_s": sim, "wall_s": wall,
                "scans": int(m.group(1)) if m else None, **scores}  # fmt: skip
         client.close()
         return out
@@ -111,23 +113,28 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--worlds", nargs="+", default=["turtlebot3_world", "turtlebot3_house"], choices=sorted(POSES))
     ap.add_argument("--robots", nargs="+", type=int, default=[1, 4], choices=(1, 2, 3, 4))
     ap.add_argument("--limit", type=float, default=300.0, help="sim seconds of exploration at most (300)")
+    ap.add_argument(
+        "--odom-noise", nargs="+", type=float, default=[0.0, 0.05], help="simd --odom-noise values (0 and 0.05)"
+    )
     ap.add_argument("--out", help="also write the results as JSON here")
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="map-bench-") as tmp:
         for world in args.worlds:
             for n in args.robots:
-                r = run(world, n, args.limit, Path(tmp))
-                rows.append(r)
-                quality = f"precision {r['precision']:.3f}, recall {r['recall']:.3f}, coverage {r['coverage']:.3f}"
-                print(f"{world}, {n} robot(s): {r['sim_s']:.0f} s sim, {r['wall_s']:.1f} s wall; {quality}", flush=True)
+                for noise in args.odom_noise:
+                    r = run(world, n, args.limit, Path(tmp), noise)
+                    rows.append(r)
+                    quality = f"precision {r['precision']:.3f}, recall {r['recall']:.3f}, coverage {r['coverage']:.3f}"
+                    print(f"{world}, {n} robot(s), odom noise {noise:g}: {r['sim_s']:.0f} s sim, {r['wall_s']:.1f} s "
+                          f"wall; {quality}", flush=True)  # fmt: skip
     speed = grid_speed()
     print()
-    print("| world | robots | sim s | wall s | precision | recall | free space covered |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
+    print("| world | robots | odometry noise | sim s | wall s | precision | recall | free space covered |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['world']} | {r['robots']} | {r['sim_s']:.0f} | {r['wall_s']:.1f} | {r['precision']:.3f} "
-              f"| {r['recall']:.3f} | {r['coverage']:.3f} |")  # fmt: skip
+        print(f"| {r['world']} | {r['robots']} | {r['odom_noise']:g} | {r['sim_s']:.0f} | {r['wall_s']:.1f} "
+              f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['coverage']:.3f} |")  # fmt: skip
     print(f"\ngrid: {speed:.0f} scans fused a second on one core (100 robots send 500 a second)")
     if args.out:
         Path(args.out).write_text(json.dumps({"runs": rows, "grid_scans_per_s": speed}, indent=2) + "\n")
