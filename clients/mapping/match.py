@@ -29,6 +29,12 @@ STEP_RAD = 0.01
 MIN_POINTS = 40
 #: the map must hold at least this many scans before it is trusted as a reference
 MIN_SCANS = 5
+#: and already explain the scan at the guess: this share of its end points on obstacle evidence
+#: (a scan of space the map has not seen yet would slide to wherever some wall is)
+MIN_SUPPORT = 0.5
+#: a correction is taken only when it fits this much better than the guess (a corridor or an
+#: open floor fits almost equally well all along: there the odometry is the better guess)
+MIN_GAIN = 1.05
 
 
 def match(
@@ -70,6 +76,10 @@ def match(
             k = len(shifts) // 2
             prior = float(scores[k, k])
     score, dx, dy, dth = best
-    if score <= prior:
+    c, s0 = math.cos(yaw0), math.sin(yaw0)
+    col = np.clip(np.floor((x0 + c * px - s0 * py - grid.origin[0]) / res).astype(np.intp), 0, grid.width - 1)
+    row = np.clip(np.floor((y0 + s0 * px + c * py - grid.origin[1]) / res).astype(np.intp), 0, grid.height - 1)
+    support = float((evidence[row, col] > 0).mean())
+    if support < MIN_SUPPORT or score <= prior * MIN_GAIN:
         return pose
     return x0 + dx, y0 + dy, math.atan2(math.sin(yaw0 + dth), math.cos(yaw0 + dth))
