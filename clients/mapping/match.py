@@ -29,12 +29,15 @@ STEP_RAD = 0.01
 MIN_POINTS = 40
 #: the map must hold at least this many scans before it is trusted as a reference
 MIN_SCANS = 5
-#: and already explain the scan at the guess: this share of its end points on obstacle evidence
-#: (a scan of space the map has not seen yet would slide to wherever some wall is)
+#: and explain the scan at the best fit: this share of its end points on obstacle evidence (a
+#: scan of space the map has not seen yet would slide to wherever some wall is)
 MIN_SUPPORT = 0.5
 #: a correction is taken only when it fits this much better than the guess (a corridor or an
 #: open floor fits almost equally well all along: there the odometry is the better guess)
 MIN_GAIN = 1.05
+#: and the guess must already be partly explained (this share of end points on evidence): a
+#: scan that mostly sees new space has too little to hold on to
+MIN_SUPPORT_AT_GUESS = 0.4
 
 
 def match(
@@ -76,10 +79,14 @@ def match(
             k = len(shifts) // 2
             prior = float(scores[k, k])
     score, dx, dy, dth = best
-    c, s0 = math.cos(yaw0), math.sin(yaw0)
-    col = np.clip(np.floor((x0 + c * px - s0 * py - grid.origin[0]) / res).astype(np.intp), 0, grid.width - 1)
-    row = np.clip(np.floor((y0 + s0 * px + c * py - grid.origin[1]) / res).astype(np.intp), 0, grid.height - 1)
-    support = float((evidence[row, col] > 0).mean())
-    if support < MIN_SUPPORT or score <= prior * MIN_GAIN:
+    def support(x: float, y: float, yaw: float) -> float:
+        c, s = math.cos(yaw), math.sin(yaw)
+        col = np.clip(np.floor((x + c * px - s * py - grid.origin[0]) / res).astype(np.intp), 0, grid.width - 1)
+        row = np.clip(np.floor((y + s * px + c * py - grid.origin[1]) / res).astype(np.intp), 0, grid.height - 1)
+        return float((evidence[row, col] > 0).mean())
+
+    if score <= prior * MIN_GAIN or support(x0 + dx, y0 + dy, yaw0 + dth) < MIN_SUPPORT:
+        return pose
+    if support(x0, y0, yaw0) < MIN_SUPPORT_AT_GUESS:
         return pose
     return x0 + dx, y0 + dy, math.atan2(math.sin(yaw0 + dth), math.cos(yaw0 + dth))
