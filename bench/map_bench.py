@@ -73,7 +73,7 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         t0 = time.monotonic()
         p = subprocess.run(
             [sys.executable, "-m", "clients.mapping.cli", "-e", endpoint, "-o", str(stem), "--explore",
-             "--explore-limit", str(limit)],
+             "--explore-limit", str(limit), *(["--match"] if odom_noise > 0 else [])],
             capture_output=True, text=True, cwd=ROOT, timeout=900,
         )  # fmt: skip
         wall = time.monotonic() - t0

@@ -61,10 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--force", action="store_true", help="replace NAME.pgm / NAME.yaml / NAME.png if they exist")
     p.add_argument(
-        "--no-matching",
+        "--match",
         action="store_true",
-        help="fuse each scan at its odometry's pose as it is (default: correct the pose by scan matching "
-        "against the map first, which keeps maps sharp when odometry drifts)",
+        help="correct each scan's pose by scan matching against the map before fusing it: for odometry that "
+        "drifts (simd --odom-noise, a real robot); off by default, as simd's odometry is exact unless told",
     )
     p.add_argument(
         "--explore",
@@ -88,7 +88,7 @@ class Plan:
     force: bool
     explore: bool = False
     explore_limit: float = 300.0
-    matching: bool = True
+    matching: bool = False
 
 
 def plan_from_args(args: argparse.Namespace) -> Plan:
@@ -114,7 +114,7 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
         raise ValueError(f"--explore-limit must be > 0, got {args.explore_limit}")
     return Plan(
         stem, robots, args.resolution, args.duration, args.force, args.explore, args.explore_limit,
-        not args.no_matching,
+        args.match,
     )  # fmt: skip
 
 

@@ -36,7 +36,7 @@ class Mapper:
     latest: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # each robot's newest pose
     latest_stamp: tuple[int, int] = (-1, 0)
     #: match each scan against the map before fusing it (scan matching corrects drifting odometry)
-    matching: bool = True
+    matching: bool = False
     #: per robot, the map frame's pose of its odometry frame (x, y, yaw): what scan matching learned
     corrections: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 

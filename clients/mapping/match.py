@@ -79,6 +79,7 @@ def match(
             k = len(shifts) // 2
             prior = float(scores[k, k])
     score, dx, dy, dth = best
+
     def support(x: float, y: float, yaw: float) -> float:
         c, s = math.cos(yaw), math.sin(yaw)
         col = np.clip(np.floor((x + c * px - s * py - grid.origin[0]) / res).astype(np.intp), 0, grid.width - 1)

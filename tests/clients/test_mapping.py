@@ -211,7 +211,7 @@ def test_exploring_with_drifting_odometry(
     stem = tmp_path / "drift"
     p = subprocess.run(
         [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
-         "--explore-limit", "120", *([] if matching else ["--no-matching"])],
+         "--explore-limit", "120", *(["--match"] if matching else [])],
         capture_output=True, text=True, cwd=ROOT, timeout=240,
     )  # fmt: skip
     assert p.returncode == 0, p.stderr
