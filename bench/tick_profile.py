@@ -100,9 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     adapter: Any = None
     sub = subprocess.Popen(
         [sys.executable, "-c", _SUBSCRIBER % (endpoint, *topics)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
     )
     try:
         assert sub.stdout is not None and sub.stdin is not None

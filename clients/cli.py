@@ -62,6 +62,7 @@ EXIT_NO_DAEMON = 3
 NO_DAEMON_CODES = (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT)
 
 
+
 # --- entry points -----------------------------------------------------------------------------
 
 

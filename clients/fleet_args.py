@@ -10,6 +10,8 @@ from protocol.zenoh_config import add_zenoh_args
 COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step")
 
 
+
+
 def add_daemon_args(p: argparse.ArgumentParser, waiting: str = "seconds to wait for the daemon") -> None:
     """What every client takes to reach a daemon: its prefix, a deadline, and zenoh's flags."""
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix of the daemon (default: %(default)s)")

@@ -40,6 +40,7 @@ from protocol import FleetError
 from protocol.errors import ErrorCode
 from protocol.frames import static_transforms
 from protocol.messages import FleetOdometry, FleetScans
+from protocol.ros_domain import domain_id
 from protocol.zenoh_config import options_from_args
 
 ROBOT_TOPICS = ("odom", "scan")
@@ -107,14 +108,7 @@ def plan_from_args(args: argparse.Namespace, now: time.struct_time | None = None
     if unknown or not topics:
         more = " (imu and joint_states need --source ros)" if unknown & set(ROS_TOPICS) else ""
         raise ValueError(f"--topics takes {', '.join(known)}; not {', '.join(sorted(unknown)) or 'nothing'}{more}")
-    domain = args.ros_domain_id
-    if domain is None:
-        raw = os.environ.get("ROS_DOMAIN_ID", "").strip()
-        if not raw.isdigit() and raw:
-            raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {raw!r}")
-        domain = int(raw or 0)
-    if not 0 <= domain <= 232:
-        raise ValueError(f"the ROS domain id must be in 0..232, got {domain}")
+    domain = domain_id(args.ros_domain_id, os.environ) if args.source == "ros" else 0
     robots = None
     if args.robots is not None:
         robots = {r.strip().strip("/") for r in args.robots.split(",") if r.strip()}

@@ -46,143 +46,44 @@ def arrow(ax: plt.Axes, a: tuple[float, float], b: tuple[float, float], label: s
 
 def layers(ax: plt.Axes) -> None:
     ax.set_title("Layers (enforced by lint-imports in ./test): each imports only what is below it", fontsize=11)
-    box(
-        ax,
-        0.2,
-        7.6,
-        9.6,
-        1.0,
-        "entry points   simd.cli · simd.container_entry · simd.healthcheck",
-        "parse flags, open the zenoh session, wire an engine to its adapters, handle signals",
-        LAYER,
-    )
-    box(
-        ax,
-        0.2,
-        5.9,
-        9.6,
-        1.4,
-        "simd.adapters   (independent of each other)",
+    box(ax, 0.2, 7.6, 9.6, 1.0, "entry points   simd.cli · simd.container_entry · simd.healthcheck",
+        "parse flags, open the zenoh session, wire an engine to its adapters, handle signals", LAYER)
+    box(ax, 0.2, 5.9, 9.6, 1.4, "simd.adapters   (independent of each other)",
         "fleet/  the fleet protocol over zenoh: requests decoded at the edge, cmd_vel intake,\n"
         "        publisher (per-robot topics, fleet topics, clock, JSON mirrors, latest-message gets)\n"
-        "room for: ros2/ (rmw_zenoh), a recorder, other daemons' ghosts",
-        ADAPTER,
-    )
-    box(
-        ax,
-        0.2,
-        3.7,
-        4.7,
-        1.9,
-        "simd.engine",
-        "engine.py  the loop: pacing, lockstep steps in\n"
+        "ros2/   ROS 2 over rmw_zenoh: topics, /tf, liveliness graph, Gazebo's and the standard services", ADAPTER)
+    box(ax, 0.2, 3.7, 4.7, 1.9, "simd.engine", "engine.py  the loop: pacing, lockstep steps in\n"
         "           slices, typed requests -> handlers\nports.py   the seam: Adapter, events,\n"
-        "           results (no transport, no wire)",
-        LAYER,
-    )
-    box(
-        ax,
-        5.1,
-        3.7,
-        4.7,
-        1.9,
-        "simd.wire",
-        "convert     core values -> protocol messages\nodom_codec  "
+        "           results (no transport, no wire)", LAYER)
+    box(ax, 5.1, 3.7, 4.7, 1.9, "simd.wire", "convert     core values -> protocol messages\nodom_codec  "
         "byte templates (+ _odompack.c)\nscan_codec  byte templates\nfleet_codec one message a tick",
-        WIRE,
-    )
-    box(
-        ax,
-        0.2,
-        1.0,
-        9.6,
-        2.4,
-        "simd.core   (no zenoh, no wire, no adapters)",
+        WIRE)
+    box(ax, 0.2, 1.0, 9.6, 2.4, "simd.core   (no zenoh, no wire, no adapters)",
         "sim.py       Simulation: spawn rules, commands, the tick, reset\nrobots.py    the robot table: "
         "one row a robot, columns declared once\nsnapshot.py  TickSnapshot (immutable), RobotState\n"
         "physics.py (pymunk) · drive.py (+ _drive.c) · lidar (+ _raycast.c) · sensor_model.py (+ _scannoise.c)\n"
-        "models.py · worldfile.py · native.py (the one registry of compiled kernels)",
-        CORE,
-    )
-    box(
-        ax,
-        0.2,
-        -0.5,
-        4.7,
-        1.2,
-        "protocol/  (below everything)",
-        "msgspec messages, requests, keys,\nnames, errors, codec, zenoh flags",
-        CLIENT,
-    )
-    box(
-        ax,
-        5.1,
-        -0.5,
-        4.7,
-        1.2,
-        "clients/  (protocol only, never simd)",
-        "FleetClient, fleet CLI, teleop,\nviewer: separate processes",
-        CLIENT,
-    )
+        "models.py · worldfile.py · native.py (the one registry of compiled kernels)", CORE)
+    box(ax, 0.2, -0.5, 4.7, 1.2, "protocol/  (below everything)", "msgspec messages, requests, keys,\nnames, "
+        "errors, codec, zenoh flags", CLIENT)
+    box(ax, 5.1, -0.5, 4.7, 1.2, "clients/  (protocol only, never simd)", "FleetClient, fleet CLI, teleop, viewer,\n"
+        "fleet-record, fleet-map: separate processes", CLIENT)
     ax.set_xlim(0, 10)
     ax.set_ylim(-0.7, 8.8)
 
 
 def tick(ax: plt.Axes) -> None:
     ax.set_title("One tick: three threads of simd overlap (both cores at work)", fontsize=11)
-    box(
-        ax,
-        0.2,
-        6.3,
-        3.0,
-        2.2,
-        "simulation thread",
-        "take commands (adapters)\ndrive.advance\nphysics.step  (pymunk,\n  GIL released)\nsnapshot -> adapters",
-        CORE,
-    )
-    box(
-        ax,
-        3.6,
-        6.3,
-        2.8,
-        2.2,
-        "lidar thread",
-        "cast (_raycast.c)\nnoise (_scannoise.c)\nboth release the GIL;\njobs in tick order:\nbit-identical scans",
-        CORE,
-    )
-    box(
-        ax,
-        6.8,
-        6.3,
-        3.0,
-        2.2,
-        "fleet adapter thread",
-        "encode + put, in order:\n"
-        "per-robot topics (only if\n  someone subscribes)\nfleet topics, clock,\nreplies, spawn/delete",
-        ADAPTER,
-    )
-    box(
-        ax,
-        0.2,
-        3.3,
-        3.0,
-        2.1,
-        "zenoh threads",
-        "queries -> decoded request\n  -> engine.submit\ncmd_vel -> ring channel\n  (drained each tick)",
-        LAYER,
-    )
-    box(
-        ax,
-        3.6,
-        3.3,
-        6.2,
-        2.1,
-        "TickSnapshot k",
-        "tick, time, namespaces, x, y, yaw,\n"
+    box(ax, 0.2, 6.3, 3.0, 2.2, "simulation thread", "take commands (adapters)\ndrive.advance\n"
+        "physics.step  (pymunk,\n  GIL released)\nsnapshot -> adapters", CORE)
+    box(ax, 3.6, 6.3, 2.8, 2.2, "lidar thread", "cast (_raycast.c)\nnoise (_scannoise.c)\n"
+        "both release the GIL;\njobs in tick order:\nbit-identical scans", CORE)
+    box(ax, 6.8, 6.3, 3.0, 2.2, "fleet adapter thread", "encode + put, in order:\n"
+        "per-robot topics (only if\n  someone subscribes)\nfleet topics, clock,\nreplies, spawn/delete", ADAPTER)
+    box(ax, 0.2, 3.3, 3.0, 2.1, "zenoh threads", "queries -> decoded request\n"
+        "  -> engine.submit\ncmd_vel -> ring channel\n  (drained each tick)", LAYER)
+    box(ax, 3.6, 3.3, 6.2, 2.1, "TickSnapshot k", "tick, time, namespaces, x, y, yaw,\n"
         "linear_x, linear_y, angular_z (arrays never written again)\nscan_namespaces, scans: a future "
-        "the lidar fills",
-        WIRE,
-    )
+        "the lidar fills", WIRE)
     box(ax, 0.2, 0.4, 9.6, 2.3, "timeline", "", THREAD)
     for name, y in (("sim", 1.95), ("lidar", 1.35), ("adapter", 0.75)):
         ax.text(0.35, y + 0.12, name, fontsize=7.5, va="center")

@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from types import FrameType
 
 from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.ros_domain import domain_id
 from protocol.zenoh_config import add_zenoh_args, options_from_args
 
 log = logging.getLogger("simd")
@@ -123,20 +124,12 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
 
 def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int, str]:
     """The ROS domain and distro from the flags, else the environment (ValueError if bad)."""
-    domain = args.ros_domain_id
-    if domain is None:
-        raw = env.get("ROS_DOMAIN_ID", "").strip()
-        try:
-            domain = int(raw) if raw else 0
-        except ValueError:
-            raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {raw!r}") from None
-    if not 0 <= domain <= 232:
-        raise ValueError(f"the ROS domain id must be in 0..232, got {domain}")
+    domain = domain_id(args.ros_domain_id, env)
     frame = args.ros_world_frame
     if frame is not None and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z0-9_]+)*", frame):
         raise ValueError(f"--ros-world-frame must be a tf frame name like 'world' (no leading '/'), got {frame!r}")
     distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ("jazzy", "humble") else "jazzy")
-    return int(domain), distro
+    return domain, distro
 
 
 def fail(message: str) -> int:

@@ -137,7 +137,3 @@ class LogOddsGrid:
         """Area known to be free or occupied."""
         occ = self.occupancy().cells
         return float(np.count_nonzero(occ != UNKNOWN)) * self.resolution**2
-
-    def to_world(self, row: int, col: int) -> tuple[float, float]:
-        """The centre of a cell."""
-        return self.origin[0] + (col + 0.5) * self.resolution, self.origin[1] + (row + 0.5) * self.resolution

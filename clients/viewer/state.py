@@ -63,6 +63,7 @@ PALETTE: tuple[str, ...] = (
 )
 
 
+
 def color_index(namespace: str) -> int:
     """Palette index of a robot: its trailing number if it has one (tb3_0, tb3_1 ... get
     distinct colours), else a stable hash of the name."""
@@ -374,3 +375,5 @@ class FleetState:
         stats.nbytes = len(data)
         stats.build_ms = (time.perf_counter() - t0) * 1e3
         return version, meta, data, stats
+
+

@@ -15,6 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.control import ModelLimits
+from protocol.frames import SCAN_OFFSET
 
 Rect = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max in base_footprint
 
@@ -100,7 +101,7 @@ BURGER = RobotModel(
     max_angular_velocity=2.84,
     max_wheel_acceleration=1.0,
     mass=1.0017,
-    lidar_offset=(-0.032, 0.0),
+    lidar_offset=SCAN_OFFSET["burger"][:2],
 )
 
 WAFFLE = RobotModel(
@@ -114,7 +115,7 @@ WAFFLE = RobotModel(
     max_angular_velocity=1.82,
     max_wheel_acceleration=1.0,
     mass=1.7239,
-    lidar_offset=(-0.064, 0.0),
+    lidar_offset=SCAN_OFFSET["waffle"][:2],
 )
 
 WAFFLE_PI = RobotModel(

@@ -331,7 +331,9 @@ class Engine:
                 "step needs a paused simulation or --lockstep (pause it first with sim/pause)",
             )
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
-            raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
+            raise FleetError(
+                ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks"
+            )
         commands: dict[str, tuple[float, float]] = {}
         for ns, tw in req.cmd_vel.items():
             v, w = float(tw.linear.x), float(tw.angular.z)

@@ -98,7 +98,9 @@ def test_turtlebot3_world_blocks() -> None:
     world = load_world("turtlebot3_world")
     head, *limbs = (Polygon(p) for p in world.polygons[6:])
     assert head.bounds == pytest.approx((2.3268, -1.016, 4.6732, 1.016))
-    for limb, (cx, cy) in zip(limbs, [(1.8, 2.7), (1.8, -2.7), (-1.8, 2.7), (-1.8, -2.7)], strict=True):
+    for limb, (cx, cy) in zip(
+        limbs, [(1.8, 2.7), (1.8, -2.7), (-1.8, 2.7), (-1.8, -2.7)], strict=True
+    ):
         assert limb.centroid.x == pytest.approx(cx) and limb.centroid.y == pytest.approx(cy)
         assert limb.bounds == pytest.approx((cx - 0.8066, cy - 0.6985, cx + 0.8066, cy + 0.6985))
     # Everything fits in the declared bounds.
@@ -293,7 +295,12 @@ BAD_FILES = [
         "pentagram",
         with_obstacle(
             "{type: polygon, points: "
-            + str([[round(math.cos(a), 4), round(math.sin(a), 4)] for a in (4 * math.pi * k / 5 for k in range(5))])
+            + str(
+                [
+                    [round(math.cos(a), 4), round(math.sin(a), 4)]
+                    for a in (4 * math.pi * k / 5 for k in range(5))
+                ]
+            )
             + "}"
         ),
         "$.obstacles[1].points",

@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.frames import Transform
+from protocol.messages import Time
 from simd.core.snapshot import TickSnapshot
 
 F32 = npt.NDArray[np.float32]
@@ -48,9 +49,10 @@ def frames_blob(frame_id: str, child: str | None, pos: int, align_after: int) ->
 
 
 def stamp(t: float) -> tuple[int, int]:
-    """builtin_interfaces/Time of sim time ``t``: whole seconds and nanoseconds."""
-    ns = round(t * 1e9)
-    return ns // 1_000_000_000, ns % 1_000_000_000
+    """builtin_interfaces/Time of sim time ``t``: whole seconds and nanoseconds (as the fleet
+    protocol's stamps)."""
+    time = Time.from_seconds(t)
+    return time.sec, time.nanosec
 
 
 def covariance(diagonal: tuple[float, ...]) -> bytes:

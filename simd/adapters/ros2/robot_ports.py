@@ -68,7 +68,20 @@ class Participant:
         return Node(self.domain, self.zid, self.next_id(), namespace, name)
 
 
-class RosPublisher:
+class _Attached:
+    """Puts whose every sample carries rmw_zenoh's attachment: a count from 1, and the GID."""
+
+    pub: Any
+    gid: bytes
+    sequence: int
+
+    def put(self, payload: bytes, stamp_ns: int | None = None) -> None:
+        """Send with the attachment; ``stamp_ns`` (wall clock) saves reading the clock per message."""
+        self.sequence += 1
+        self.pub.put(payload, attachment=graph.attachment(self.sequence, self.gid, stamp_ns))
+
+
+class RosPublisher(_Attached):
     """A declared publisher whose every sample carries rmw_zenoh's attachment, with its token."""
 
     def __init__(self, p: Participant, node: Node, topic: Topic, qos: Qos, tokens: list[Any],
@@ -81,17 +94,12 @@ class RosPublisher:
         self.wanted = Interest(self.pub, tally)
         tokens.append(p.session.liveliness().declare_token(token))
 
-    def put(self, payload: bytes, stamp_ns: int | None = None) -> None:
-        """Send with the attachment; ``stamp_ns`` (wall clock) saves reading the clock per message."""
-        self.sequence += 1
-        self.pub.put(payload, attachment=graph.attachment(self.sequence, self.gid, stamp_ns))
-
     def undeclare(self) -> None:
         self.wanted.undeclare()
         self.pub.undeclare()
 
 
-class LatchedPublisher:
+class LatchedPublisher(_Attached):
     """A transient-local publisher (``/tf_static``): late subscribers get its last message.
 
     rmw_zenoh declares a transient-local publisher as a zenoh-ext advanced publisher with a
@@ -113,10 +121,6 @@ class LatchedPublisher:
             sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5),
         )
         tokens.append(p.session.liveliness().declare_token(token))
-
-    def put(self, payload: bytes) -> None:
-        self.sequence += 1
-        self.pub.put(payload, attachment=graph.attachment(self.sequence, self.gid))
 
     def undeclare(self) -> None:
         try:
