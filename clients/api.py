@@ -147,7 +147,11 @@ class FleetClient:
         raise FleetError(
             ErrorCode.UNAVAILABLE,
             f"no fleetsim daemon answered on {key} via {self.options.endpoints()} "
-            "(is simd running with the same --prefix?)",
+            + (
+                "(is simd running with the same --prefix?)"
+                if self.options.user() is None
+                else f"({self.options.no_answer_hint()})"
+            ),
         )
 
     def spawn(

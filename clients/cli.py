@@ -62,7 +62,6 @@ EXIT_NO_DAEMON = 3
 NO_DAEMON_CODES = (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT)
 
 
-
 # --- entry points -----------------------------------------------------------------------------
 
 
@@ -130,7 +129,7 @@ def _no_daemon(args: argparse.Namespace) -> int:
     prefix = f" with prefix '{args.prefix}'" if args.prefix != DEFAULT_PREFIX else ""
     print(
         f"fleet: no fleetsim daemon{prefix} answered at {opts.endpoints()} "
-        f"within {args.timeout:g} s (start one with: simd)",
+        f"within {args.timeout:g} s ({opts.no_answer_hint()})",
         file=sys.stderr,
         flush=True,
     )

@@ -98,7 +98,7 @@ class Teleop:
     def open(cls, key: str, options: ZenohOptions, *, prefix: str = DEFAULT_PREFIX, timeout: float = 3.0) -> Teleop:
         no_daemon = (
             f"fleet-teleop: no fleetsim daemon answered at {options.endpoints()} "
-            f"within {timeout:g} s (start one with: simd)"
+            f"within {timeout:g} s ({options.no_answer_hint()})"
         )
         try:
             client = FleetClient(options=options, prefix=prefix, timeout=timeout)

@@ -17,6 +17,11 @@ if TYPE_CHECKING:
     import zenoh
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: A lost connection is retried every quarter second at first and at least once a second (zenoh:
+#: 1 s, doubling up to 4 s), so that a client finds a restarted daemon within about a second.
+RECONNECT_DEFAULTS = {
+    "connect/retry": '{"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}',
+}
 
 
 @dataclass
@@ -40,8 +45,37 @@ class ZenohOptions:
         )
 
     def endpoints(self) -> str:
-        """The endpoints in use, for messages."""
-        return ", ".join(self.connect or self.listen) or "(from the config file)"
+        """The endpoints in use, for messages (a config file's own when no flag gives them)."""
+        if self.connect or self.listen:
+            return ", ".join(self.connect or self.listen)
+        found = self._from_file("connect/endpoints") or self._from_file("listen/endpoints")
+        if isinstance(found, dict):  # per-mode lists
+            found = found.get(self.mode) or []
+        return ", ".join(str(e) for e in found) if isinstance(found, list) and found else "(from the config file)"
+
+    def user(self) -> str | None:
+        """The user/password authentication's user of the config file, if it has one."""
+        user = self._from_file("transport/auth/usrpwd/user")
+        return user if isinstance(user, str) else None
+
+    def no_answer_hint(self) -> str:
+        """Why nobody may have answered, for messages: with a secured config, access control
+        refuses what a user may not do by not passing the request on at all."""
+        user = self.user()
+        if user is None:
+            return "start one with: simd"
+        return (f"is simd running there? If it is, its access control does not let user {user!r} do this "
+                "(see docs/security.md)")  # fmt: skip
+
+    def _from_file(self, key: str) -> object:
+        if not self.config_file:
+            return None
+        import zenoh
+
+        try:
+            return json.loads(zenoh.Config.from_file(self.config_file).get_json(key))
+        except (zenoh.ZError, ValueError):
+            return None
 
     def build(self, defaults: dict[str, str] | None = None) -> zenoh.Config:
         """The session config: file, then flags; ``defaults`` (key -> JSON5) apply only
@@ -60,7 +94,7 @@ class ZenohOptions:
             enabled = "true" if self.multicast_scouting else "false"
             conf.insert_json5("scouting/multicast/enabled", enabled)
         if not self.config_file:
-            for key, value in (defaults or {}).items():
+            for key, value in {**RECONNECT_DEFAULTS, **(defaults or {})}.items():
                 conf.insert_json5(key, value)
         for item in self.cfg:
             key, sep, value = item.partition(":")
@@ -68,6 +102,37 @@ class ZenohOptions:
                 raise ValueError(f"--cfg expects KEY:VALUE (VALUE in JSON5), got {item!r}")
             conf.insert_json5(key, value)
         return conf
+
+
+def _loopback(endpoint: str) -> bool:
+    """Whether ``proto/host:port`` only accepts connections from this machine."""
+    import ipaddress
+
+    host = endpoint.partition("/")[2].rpartition(":")[0].strip("[]")
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False  # a host name: assume it reaches beyond this machine
+
+
+def exposed_without_authentication(conf: zenoh.Config, mode: str) -> list[str]:
+    """The listening endpoints that other machines can reach when the config authenticates
+    nobody (no user/password dictionary, no mutual TLS): anyone there could drive the fleet."""
+
+    def read(key: str) -> object:
+        try:
+            return json.loads(conf.get_json(key))
+        except ValueError:
+            return None
+
+    if read("transport/auth/usrpwd/dictionary_file") or read("transport/link/tls/enable_mtls") is True:
+        return []
+    listen = read("listen/endpoints")
+    if isinstance(listen, dict):
+        listen = listen.get(mode) or []
+    return [str(e) for e in listen or [] if not _loopback(str(e))] if isinstance(listen, list) else []
 
 
 def add_zenoh_args(parser: argparse.ArgumentParser, *, server: bool, default_mode: str | None = None) -> None:

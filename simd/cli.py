@@ -9,6 +9,7 @@ import re
 import signal
 import sys
 from collections.abc import Mapping
+from pathlib import Path
 from types import FrameType
 
 from protocol.keys import DEFAULT_PREFIX, Keys
@@ -75,6 +76,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="advance only when a client asks (sim/step), for deterministic tests and learning loops",
     )
     p.add_argument("--paused", action="store_true", help="start paused")
+    p.add_argument(
+        "--state",
+        metavar="FILE",
+        help="keep the fleet in FILE: written every few seconds and on shutdown, restored on start, so a restarted "
+        "daemon brings its robots back (a missing FILE is created)",
+    )
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     add_zenoh_args(p, server=True)
     add_ros_args(p)
@@ -186,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from simd.adapters.fleet.adapter import FleetAdapter
     from simd.core.sim import SimConfig, Simulation
-    from simd.engine import Engine
+    from simd.engine import Engine, checkpoint
 
     sim = Simulation(
         world,
@@ -198,6 +205,22 @@ def main(argv: list[str] | None = None) -> int:
             odom_noise=args.odom_noise,
         ),
     )
+    saver = None
+    if args.state:
+        state_path = Path(args.state)
+        if not state_path.parent.is_dir():
+            return fail(f"--state {args.state}: directory {state_path.parent} does not exist")
+        try:
+            saved = checkpoint.read(state_path)
+            restored = 0 if saved is None else checkpoint.restore(sim, saved, state_path)
+        except checkpoint.StateFileError as e:
+            sim.close()
+            return fail(str(e))
+        if saved is None:
+            print(f"simd: state {state_path}: none yet, the fleet will be kept there", flush=True)
+        else:
+            print(f"simd: state {state_path}: restored {restored} robots at sim time {sim.time:.3f} s", flush=True)
+        saver = checkpoint.Saver(state_path)
     ros_session = None
     router = ""
     if args.ros2:  # first: with --ros-serve-router the fleet session below connects to it
@@ -236,7 +259,14 @@ def main(argv: list[str] | None = None) -> int:
         if "in use" in msg.lower():
             return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
         return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
-    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused)
+    from protocol.zenoh_config import exposed_without_authentication
+
+    exposed = exposed_without_authentication(conf, opts.mode)
+    if exposed:
+        print(f"simd: warning: listening on {', '.join(exposed)} without authentication: anyone who can reach it "
+              "can spawn, delete and drive robots and answer in the daemon's place; for a secured fleet see "
+              "docs/security.md (fleet-security init)", file=sys.stderr, flush=True)  # fmt: skip
+    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver)
     adapter: FleetAdapter | None = None
     ros_adapter = None
     try:
@@ -260,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         if through_router:
             where = f"fleet protocol through the ROS router at {router}"
         else:
-            where = f"listening on {', '.join(opts.listen) or '(config file)'}"
+            where = f"listening on {opts.endpoints()}"
         print(f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; {where}; prefix '{keys.prefix}'",
               flush=True)  # fmt: skip
         slow = {name: why.removeprefix("numpy (").removesuffix(")") for name, why in fast.items() if why != "native"}

@@ -46,7 +46,7 @@ ENV_PREFIX = "SIMD_"
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 DEFAULT_STATE_FILE = "/tmp/fleetsim-simd.json"
 #: SIMD_* variables that are not simd flags.
-OWN_VARIABLES = frozenset({"SIMD_STATE_FILE", "SIMD_HEALTH_TIMEOUT"})
+OWN_VARIABLES = frozenset({"SIMD_STATE_FILE", "SIMD_HEALTH_TIMEOUT", "SIMD_HEALTH_CONFIG"})
 
 _TRUE = frozenset({"1", "true", "yes", "on"})
 _FALSE = frozenset({"", "0", "false", "no", "off"})

@@ -14,7 +14,9 @@ Where to ask, first match wins:
    ``SIMD_PREFIX``;
 4. ``tcp/127.0.0.1:7447`` and prefix ``fleet``.
 
-``SIMD_HEALTH_TIMEOUT`` (seconds) changes the default timeout.
+``SIMD_HEALTH_TIMEOUT`` (seconds) changes the default timeout. ``SIMD_HEALTH_CONFIG`` (or
+``-c FILE``) is a zenoh client config to ask with: a secured daemon (docs/security.md) answers
+only over TLS, to a known user (``fleet-security init`` writes ``health.json5`` for this).
 """
 
 from __future__ import annotations
@@ -76,12 +78,12 @@ def _short(e: BaseException) -> str:
     return msg
 
 
-def check(target: Target, timeout: float) -> tuple[bool, str]:
+def check(target: Target, timeout: float, config_file: str | None = None) -> tuple[bool, str]:
     """Query ``<prefix>/clock``; (healthy, message)."""
     import zenoh
 
     t0 = time.monotonic()
-    conf = ZenohOptions(mode="client", connect=target.connect).build()
+    conf = ZenohOptions(mode="client", connect=target.connect, config_file=config_file).build()
     conf.insert_json5("connect/timeout_ms", str(max(1, int(timeout * 1000))))
     where = ", ".join(target.connect)
     try:
@@ -118,6 +120,7 @@ def main(argv: Sequence[str] | None = None, env: Mapping[str, str] | None = None
         help="daemon endpoint (default: from the entrypoint's state file or SIMD_LISTEN)",
     )
     p.add_argument("--prefix", help="key prefix (default: the daemon's, or SIMD_PREFIX, or fleet)")
+    p.add_argument("-c", "--config", metavar="FILE", help="zenoh client config (default: SIMD_HEALTH_CONFIG)")
     p.add_argument(
         "--timeout",
         type=float,
@@ -133,7 +136,7 @@ def main(argv: Sequence[str] | None = None, env: Mapping[str, str] | None = None
             timeout = DEFAULT_TIMEOUT
     target = resolve_target(args.connect, args.prefix, environ)
     try:
-        ok, message = check(target, timeout)
+        ok, message = check(target, timeout, args.config or environ.get("SIMD_HEALTH_CONFIG") or None)
     except Exception as e:  # a healthcheck reports, it does not crash with a traceback
         ok, message = False, f"{type(e).__name__}: {e}"
     print(f"simd {'healthy' if ok else 'UNHEALTHY'}: {message}", flush=True)

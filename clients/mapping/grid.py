@@ -66,6 +66,11 @@ class LogOddsGrid:
         self.logodds = np.zeros((self.height, self.width), dtype=np.float32)
         self.seen = np.zeros((self.height, self.width), dtype=bool)
         self.scans = 0
+        # where in its cell each occupied cell's obstacle is: the sum and count of the end points
+        # that fell in it (scan matching aligns scans to these, finer than the cells)
+        self.hit_x = np.zeros((self.height, self.width), dtype=np.float64)
+        self.hit_y = np.zeros((self.height, self.width), dtype=np.float64)
+        self.hit_count = np.zeros((self.height, self.width), dtype=np.float64)
         self._free = np.zeros((self.height, self.width), dtype=bool)  # scratch masks of one scan
         self._hit = np.zeros((self.height, self.width), dtype=bool)
 
@@ -102,8 +107,9 @@ class LogOddsGrid:
         fx = np.concatenate((x + dx[beam] * d, x + dx * last))
         fy = np.concatenate((y + dy[beam] * d, y + dy * last))
         free = self._mark(fx, fy, self._free[window], r0, c0)
-        hits = self._mark(x + dx[hit_beams] * reach[hit_beams], y + dy[hit_beams] * reach[hit_beams],
-                          self._hit[window], r0, c0)  # fmt: skip
+        ex, ey = x + dx[hit_beams] * reach[hit_beams], y + dy[hit_beams] * reach[hit_beams]
+        hits = self._mark(ex, ey, self._hit[window], r0, c0)
+        self._remember(ex, ey)
         # each cell once per scan, and a cell a beam ends in is a hit whatever crossed it
         free &= ~hits
         logodds = self.logodds[window]
@@ -115,6 +121,16 @@ class LogOddsGrid:
         free[:] = False
         hits[:] = False
         self.scans += 1
+
+    def _remember(self, ex: F64, ey: F64) -> None:
+        """Add end points to their cells' sums."""
+        col = np.floor((ex - self.origin[0]) / self.resolution).astype(np.intp)
+        row = np.floor((ey - self.origin[1]) / self.resolution).astype(np.intp)
+        inside = (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        row, col = row[inside], col[inside]
+        np.add.at(self.hit_count, (row, col), 1.0)
+        np.add.at(self.hit_x, (row, col), ex[inside])
+        np.add.at(self.hit_y, (row, col), ey[inside])
 
     def _mark(self, px: F64, py: F64, mask: npt.NDArray[np.bool_], r0: int, c0: int) -> npt.NDArray[np.bool_]:
         """``mask`` (a window of a scratch grid starting at row ``r0``, column ``c0``; all false on

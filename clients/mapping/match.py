@@ -1,12 +1,25 @@
-"""Correlative scan matching: where, near a guess, a scan fits the map best.
+"""Scan-to-map matching: where, near the odometry's guess, a scan fits the map best.
 
 Odometry that drifts (a real robot's, or ``simd --odom-noise``) would smear a map built at the
-odometry's poses. Before a scan goes into the grid, the robot's pose is searched in a small
-window around the guess: every candidate (a lattice of x, y and heading offsets) places the
-scan's end points in the map, and scores the evidence of obstacles under them (positive
-log-odds only); the best candidate wins if it beats the guess. This is the brute-force form of
-Olson's correlative matching (and of what Cartographer's real-time correlative matcher does),
-vectorised over the x-y lattice for each heading.
+odometry's poses. Before a scan goes into the grid, the robot's pose is corrected against the
+map built so far by point-to-line ICP with a motion prior:
+
+- **The map's obstacles, finer than its cells.** Each occupied cell remembers the mean of the
+  scan end points that fell in it (grid.py), so a wall is known to a few millimetres although
+  the cells are 5 cm; the local direction of the wall at a cell comes from its occupied
+  neighbours' means (the smallest axis of their spread is the wall's normal).
+- **Correspondences through the grid.** A scan point pairs with the nearest remembered point
+  among the occupied cells around the cell it falls in; no search tree is needed, the grid is
+  the index. Pairs farther apart than a few centimetres are dropped (new space, a robot that
+  passed by).
+- **Point-to-line least squares with a prior.** Each pair contributes its distance along the
+  wall's normal; sliding along a wall costs nothing in that term, so along a long wall, in a
+  corridor or on open floor the data cannot pull the pose in that direction, and the prior (a
+  quadratic pull toward the odometry's guess, as wide as the odometry's error over one scan)
+  holds it there. This is what keeps a scan from sliding where the map cannot tell: the same
+  idea as the odometry term of Cartographer's Ceres scan matcher or slam_toolbox's penalties.
+
+A scan with too few pairs is not matched at all: the odometry is the better guess there.
 """
 
 from __future__ import annotations
@@ -16,78 +29,194 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from clients.mapping.grid import Beams, LogOddsGrid
+from clients.mapping.grid import OCCUPIED_LOGODDS, Beams, LogOddsGrid
 
-F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
 
-#: the search window (± metres, ± radians) and its steps
-WINDOW_M = 0.12
-STEP_M = 0.02
-WINDOW_RAD = 0.08
-STEP_RAD = 0.01
-#: a scan with fewer end points than this is not matched (nothing to hold on to)
-MIN_POINTS = 40
+#: how far (cells) around a scan point's cell a correspondence is looked for, first and last
+#: iteration: the first takes a few centimetres of drift, the last only what fits closely
+SEARCH_CELLS = 1
+PAIR_M = (0.05, 0.03)
+ITERATIONS = 8
+#: the scan's end points are this noisy along a wall's normal (metres): the data term's scale
+POINT_SIGMA_M = 0.01
+#: the odometry's error over one scan period (a fifth of a second): the prior's widths. 5 %
+#: wheel slip gives a few millimetres and milliradians; the widths leave room for a jolt
+PRIOR_M = 0.01
+PRIOR_RAD = 0.02
+#: a cell's neighbours form a wall when their spread across is under this share of their spread along
+STRAIGHT = 0.1
+#: a scan with fewer pairs than this, at the end, keeps the odometry's pose
+MIN_PAIRS = 30
+#: below this share of the scan's points paired, a wide search (± metres, ± radians, steps) looks
+#: for a better basin, taken when it pairs at least RELOCK_GAIN more of the points
+RELOCK_BELOW = 0.3
+RELOCK_GAIN = 0.3
+RELOCK_M = 0.15
+RELOCK_STEP_M = 0.025
+RELOCK_RAD = 0.08
+RELOCK_STEP_RAD = 0.01
 #: the map must hold at least this many scans before it is trusted as a reference
 MIN_SCANS = 5
-#: and explain the scan at the best fit: this share of its end points on obstacle evidence (a
-#: scan of space the map has not seen yet would slide to wherever some wall is)
-MIN_SUPPORT = 0.5
-#: a correction is taken only when it fits this much better than the guess (a corridor or an
-#: open floor fits almost equally well all along: there the odometry is the better guess)
-MIN_GAIN = 1.05
-#: and the guess must already be partly explained (this share of end points on evidence): a
-#: scan that mostly sees new space has too little to hold on to
-MIN_SUPPORT_AT_GUESS = 0.4
+
+
+def _offsets(reach: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
+    dr, dc = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    return dr.ravel(), dc.ravel()
+
+
+class _Obstacles:
+    """The map's remembered obstacle points and wall normals near a pose, for one scan's match."""
+
+    def __init__(self, grid: LogOddsGrid) -> None:
+        self.grid = grid
+
+    def occupied(self, rows: npt.NDArray[np.intp], cols: npt.NDArray[np.intp]) -> npt.NDArray[np.bool_]:
+        """Whether these cells hold an obstacle with remembered points (looked up, not the whole grid)."""
+        return (self.grid.logodds[rows, cols] > OCCUPIED_LOGODDS) & (self.grid.hit_count[rows, cols] > 0)
+
+    def pairs(self, wx: F64, wy: F64, reach: int) -> tuple[F64, F64, F64, F64, npt.NDArray[np.bool_]]:
+        """For each point: the nearest obstacle point (mx, my) within ``reach`` cells, that
+        wall's normal (nx, ny), and whether one was found."""
+        g = self.grid
+        res = g.resolution
+        col = np.floor((wx - g.origin[0]) / res).astype(np.intp)
+        row = np.floor((wy - g.origin[1]) / res).astype(np.intp)
+        dr, dc = _offsets(reach)
+        rows = np.clip(row[:, None] + dr[None, :], 0, g.height - 1)  # (points, candidates)
+        cols = np.clip(col[:, None] + dc[None, :], 0, g.width - 1)
+        occ = self.occupied(rows, cols)
+        counts = np.maximum(g.hit_count[rows, cols], 1.0)
+        mx = g.hit_x[rows, cols] / counts
+        my = g.hit_y[rows, cols] / counts
+        d2 = np.where(occ, (mx - wx[:, None]) ** 2 + (my - wy[:, None]) ** 2, np.inf)
+        k = np.argmin(d2, axis=1)
+        idx = np.arange(len(wx))
+        found = np.isfinite(d2[idx, k])
+        r, c = rows[idx, k], cols[idx, k]
+        nx, ny, straight = self._normals(r, c)
+        return mx[idx, k], my[idx, k], nx, ny, found & straight
+
+    def _normals(self, r: npt.NDArray[np.intp], c: npt.NDArray[np.intp]) -> tuple[F64, F64, npt.NDArray[np.bool_]]:
+        """The normal of the wall through each cell: the minor axis of its occupied 3x3 neighbours'
+        means; and whether there is a wall there, i.e. at least three points in a line (a lone
+        cell, a corner or a blob has no direction to slide along, nor one to be held by)."""
+        g = self.grid
+        dr, dc = _offsets(1)
+        rows = np.clip(r[:, None] + dr[None, :], 0, g.height - 1)
+        cols = np.clip(c[:, None] + dc[None, :], 0, g.width - 1)
+        w = self.occupied(rows, cols).astype(np.float64)
+        counts = np.maximum(g.hit_count[rows, cols], 1.0)
+        px = g.hit_x[rows, cols] / counts
+        py = g.hit_y[rows, cols] / counts
+        n = np.maximum(w.sum(axis=1), 1.0)
+        cx = (w * px).sum(axis=1) / n
+        cy = (w * py).sum(axis=1) / n
+        sxx = (w * (px - cx[:, None]) ** 2).sum(axis=1)
+        syy = (w * (py - cy[:, None]) ** 2).sum(axis=1)
+        sxy = (w * (px - cx[:, None]) * (py - cy[:, None])).sum(axis=1)
+        # the major axis of a 2x2 covariance is at 0.5 atan2(2 sxy, sxx - syy); the normal is across it
+        major = 0.5 * np.arctan2(2.0 * sxy, sxx - syy)
+        half = (sxx + syy) / 2.0
+        spread = np.sqrt(np.maximum(half * half - (sxx * syy - sxy * sxy), 0.0))
+        straight = (w.sum(axis=1) >= 3) & (half - spread < STRAIGHT * (half + spread))
+        return -np.sin(major), np.cos(major), straight
+
+
+def _evidence(grid: LogOddsGrid, x: float, y: float, reach_m: float) -> tuple[F64, float, float]:
+    """The map's evidence of obstacles around (x, y): 0 where free or unknown, rising to 1 with
+    the log-odds, blurred by one [1/4, 1/2, 1/4] pass each way; and the window's corner (metres)."""
+    res = grid.resolution
+    span = math.ceil(reach_m / res) + 2
+    cr, cc = int((y - grid.origin[1]) // res), int((x - grid.origin[0]) // res)
+    r0, c0 = max(0, cr - span), max(0, cc - span)
+    r1, c1 = min(grid.height, cr + span + 1), min(grid.width, cc + span + 1)
+    e = np.maximum(0.0, 1.0 - 2.0 / (1.0 + np.exp(grid.logodds[r0:r1, c0:c1].astype(np.float64))))
+    e[1:-1, :] = 0.25 * e[:-2, :] + 0.5 * e[1:-1, :] + 0.25 * e[2:, :]
+    e[:, 1:-1] = 0.25 * e[:, :-2] + 0.5 * e[:, 1:-1] + 0.25 * e[:, 2:]
+    return e, grid.origin[0] + c0 * res, grid.origin[1] + r0 * res
+
+
+def _coarse(grid: LogOddsGrid, px: F64, py: F64, pose: tuple[float, float, float]) -> F64:
+    """The offset (dx, dy, dyaw) on a lattice around ``pose`` where the scan's end points lie on
+    the most evidence: a basin for the refinement to start from after a drift too large for it."""
+    x0, y0, yaw0 = pose
+    evidence, ox, oy = _evidence(grid, x0, y0, float(np.hypot(px, py).max()) + RELOCK_M)
+    h, w = evidence.shape
+    res = grid.resolution
+    shifts = np.arange(-RELOCK_M, RELOCK_M + 1e-9, RELOCK_STEP_M)
+    best = (-math.inf, 0.0, 0.0, 0.0)
+    for dyaw in np.arange(-RELOCK_RAD, RELOCK_RAD + 1e-9, RELOCK_STEP_RAD):
+        c, s = math.cos(yaw0 + dyaw), math.sin(yaw0 + dyaw)
+        wx, wy = x0 + c * px - s * py, y0 + s * px + c * py
+        col = np.clip(np.floor((wx[None, :] + shifts[:, None] - ox) / res).astype(np.intp), 0, w - 1)
+        row = np.clip(np.floor((wy[None, :] + shifts[:, None] - oy) / res).astype(np.intp), 0, h - 1)
+        scores = evidence[row[:, None, :], col[None, :, :]].sum(axis=2)  # [i, j]: shift i in y, j in x
+        i, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
+        if scores[i, j] > best[0]:
+            best = (float(scores[i, j]), float(shifts[j]), float(shifts[i]), float(dyaw))
+    return np.array(best[1:])
+
+
+def _refine(obstacles: _Obstacles, px: F64, py: F64, pose: tuple[float, float, float], start: F64) -> tuple[F64, float]:
+    """Point-to-line ICP from the offset ``start``, with the prior pulling toward the guess
+    ``pose``: the offset it ends at and the share of the scan's points paired there (its support);
+    support 0 when too few pairs were found to trust."""
+    x0, y0, yaw0 = pose
+    prior = np.diag([1 / PRIOR_M**2, 1 / PRIOR_M**2, 1 / PRIOR_RAD**2])
+    p = start.astype(np.float64).copy()
+    pairs = 0
+    for it in range(ITERATIONS):
+        c, s = math.cos(yaw0 + p[2]), math.sin(yaw0 + p[2])
+        wx, wy = x0 + p[0] + c * px - s * py, y0 + p[1] + s * px + c * py
+        mx, my, nx, ny, found = obstacles.pairs(wx, wy, SEARCH_CELLS)
+        limit = PAIR_M[0] + (PAIR_M[1] - PAIR_M[0]) * it / max(1, ITERATIONS - 1)
+        use = found & (np.hypot(np.where(found, mx - wx, 0), np.where(found, my - wy, 0)) < limit)
+        pairs = int(use.sum())
+        if pairs < MIN_PAIRS:
+            return p, 0.0
+        nx, ny = nx[use], ny[use]
+        residual = nx * (wx[use] - mx[use]) + ny * (wy[use] - my[use])
+        # d(world point)/d(yaw) = (-s px - c py, c px - s py)
+        dyaw = nx * (-s * px[use] - c * py[use]) + ny * (c * px[use] - s * py[use])
+        jac = np.column_stack([nx, ny, dyaw])
+        # Huber weights: a pair a few sigmas off (a corner, a robot) counts less
+        scaled = np.abs(residual) / (2.0 * POINT_SIGMA_M)
+        weight = np.where(scaled <= 1.0, 1.0, 1.0 / np.maximum(scaled, 1e-12)) / POINT_SIGMA_M**2
+        hessian = (jac * weight[:, None]).T @ jac + prior
+        gradient = (jac * weight[:, None]).T @ residual + prior @ p
+        step = np.linalg.solve(hessian, -gradient)
+        p = p + step
+        if abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4 and it >= ITERATIONS // 2:
+            break
+    return p, pairs / len(px)
 
 
 def match(
-    grid: LogOddsGrid, pose: tuple[float, float, float], offset: tuple[float, float], ranges: F32, beams: Beams
-) -> tuple[float, float, float]:
+    grid: LogOddsGrid, pose: tuple[float, float, float], offset: tuple[float, float], ranges: npt.ArrayLike,
+    beams: Beams,
+) -> tuple[float, float, float]:  # fmt: skip
     """The robot pose near ``pose`` (x, y, yaw of base_footprint) where the scan, taken by a lidar
-    ``offset`` ahead of the robot's origin, fits ``grid`` best; ``pose`` itself when nothing fits better."""
+    ``offset`` ahead of the robot's origin, fits ``grid`` best; ``pose`` itself when the map
+    cannot tell."""
     if grid.scans < MIN_SCANS:
         return pose
     r = np.asarray(ranges, dtype=np.float64)
-    ok = np.isfinite(r) & (r >= beams.range_min) & (r <= beams.range_max)
-    if ok.sum() < MIN_POINTS:
+    ok = np.isfinite(r) & (r >= beams.range_min) & (r < beams.range_max)
+    if ok.sum() < MIN_PAIRS:
         return pose
     a = beams.angles[ok]
-    # end points in the robot's frame
-    px = offset[0] + r[ok] * np.cos(a)
+    px = offset[0] + r[ok] * np.cos(a)  # end points in the robot's frame
     py = offset[1] + r[ok] * np.sin(a)
-    evidence = np.maximum(grid.logodds, 0.0)
-    res = grid.resolution
-    shifts = np.arange(-WINDOW_M, WINDOW_M + 1e-9, STEP_M)
-    turns = np.arange(-WINDOW_RAD, WINDOW_RAD + 1e-9, STEP_RAD)
+    obstacles = _Obstacles(grid)
+    p, support = _refine(obstacles, px, py, pose, np.zeros(3))
+    if support < RELOCK_BELOW:
+        # little of the scan fits where odometry says: after a long blind stretch the drift may
+        # be beyond the refinement's reach; a wide search finds the basin, if there is one
+        p2, support2 = _refine(obstacles, px, py, pose, _coarse(grid, px, py, pose))
+        if support2 >= max(RELOCK_BELOW, support + RELOCK_GAIN):
+            p, support = p2, support2
+    if support == 0.0:
+        return pose
     x0, y0, yaw0 = pose
-    best = (-math.inf, 0.0, 0.0, 0.0)
-    prior = -math.inf
-    for dth in turns:
-        c, s = math.cos(yaw0 + dth), math.sin(yaw0 + dth)
-        wx = x0 + c * px - s * py  # world end points for this heading, before the x-y shift
-        wy = y0 + s * px + c * py
-        col = np.floor((wx[None, :] + shifts[:, None] - grid.origin[0]) / res).astype(np.intp)  # (shifts, n)
-        row = np.floor((wy[None, :] + shifts[:, None] - grid.origin[1]) / res).astype(np.intp)
-        col = np.clip(col, 0, grid.width - 1)
-        row = np.clip(row, 0, grid.height - 1)
-        # scores[i, j]: shift i in y, shift j in x
-        scores = evidence[row[:, None, :], col[None, :, :]].sum(axis=2)
-        i, j = np.unravel_index(int(np.argmax(scores)), scores.shape)
-        if scores[i, j] > best[0]:
-            best = (float(scores[i, j]), float(shifts[j]), float(shifts[i]), float(dth))
-        if abs(dth) < STEP_RAD / 2:
-            k = len(shifts) // 2
-            prior = float(scores[k, k])
-    score, dx, dy, dth = best
-
-    def support(x: float, y: float, yaw: float) -> float:
-        c, s = math.cos(yaw), math.sin(yaw)
-        col = np.clip(np.floor((x + c * px - s * py - grid.origin[0]) / res).astype(np.intp), 0, grid.width - 1)
-        row = np.clip(np.floor((y + s * px + c * py - grid.origin[1]) / res).astype(np.intp), 0, grid.height - 1)
-        return float((evidence[row, col] > 0).mean())
-
-    if score <= prior * MIN_GAIN or support(x0 + dx, y0 + dy, yaw0 + dth) < MIN_SUPPORT:
-        return pose
-    if support(x0, y0, yaw0) < MIN_SUPPORT_AT_GUESS:
-        return pose
-    return x0 + dx, y0 + dy, math.atan2(math.sin(yaw0 + dth), math.cos(yaw0 + dth))
+    return x0 + p[0], y0 + p[1], math.atan2(math.sin(yaw0 + p[2]), math.cos(yaw0 + p[2]))

@@ -189,13 +189,22 @@ class Simulation:
             )
         return name, namespace, model, x, y, yaw
 
-    def spawn(self, req: SpawnRequest) -> Robot:
-        """Add a robot, or raise :class:`FleetError` leaving the world untouched."""
+    def spawn(
+        self,
+        req: SpawnRequest,
+        *,
+        spawn_pose: tuple[float, float, float] | None = None,
+        odom: tuple[float, float, float] | None = None,
+    ) -> Robot:
+        """Add a robot, or raise :class:`FleetError` leaving the world untouched. A robot
+        brought back from a saved state keeps the ``spawn_pose`` a reset returns it to and the
+        ``odom`` pose its odometry had reached; a new one starts with both at its pose."""
         name, namespace, model, x, y, yaw = self.validate_spawn(req)
+        ox, oy, oyaw = odom if odom is not None else (x, y, yaw)
         open_phases = [p for p, load in enumerate(self._phase_load) if load < SCAN_BATCH]
         phase = open_phases[0] if open_phases else int(np.argmin(self._phase_load))
         self._phase_load[phase] += 1
-        robot = Robot(self._next_rid, name, namespace, model, (x, y, yaw), phase)
+        robot = Robot(self._next_rid, name, namespace, model, spawn_pose or (x, y, yaw), phase)
         self._next_rid += 1
         self.physics.add_robot(robot.rid, model, x, y, yaw)
         self.robots.append(
@@ -205,9 +214,9 @@ class Simulation:
             x=x,
             y=y,
             yaw=yaw,
-            odom_x=x,
-            odom_y=y,
-            odom_yaw=yaw,
+            odom_x=ox,
+            odom_y=oy,
+            odom_yaw=oyaw,
             sep=model.wheel_separation,
             max_v=model.max_linear_velocity,
             max_w=model.max_angular_velocity,

@@ -38,6 +38,7 @@ from protocol.errors import ErrorCode, FleetError
 from protocol.messages import Time
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
+from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
 from simd.engine.ports import (
     Adapter,
     Deleted,
@@ -111,6 +112,7 @@ class Engine:
         lockstep: bool = False,
         paused: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        saver: Saver | None = None,
     ) -> None:
         self.sim = sim
         self.rtf = rtf
@@ -124,6 +126,8 @@ class Engine:
         self._pending_commands: dict[str, tuple[float, float]] = {}
         self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}  # namespace -> (tick, row) of its scan
         self._rtf = RtfMeter()
+        self._saver = saver  # --state: the fleet written as it runs
+        self._next_save = math.inf
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
             SpawnRequest: self._spawn,
             DeleteRequest: self._delete,
@@ -137,7 +141,11 @@ class Engine:
         }
 
     def attach(self, adapter: Adapter) -> None:
+        """Add an adapter; it hears of every robot already in the world (restored from a
+        state file, or attached late) as if each had just been spawned."""
         self.adapters.append(adapter)
+        for state in self.sim.states():
+            adapter.on_event(Spawned(state, self.sim.time))
 
     # -- from any thread --------------------------------------------------------------------
 
@@ -182,8 +190,12 @@ class Engine:
         period = self.sim.config.dt / self.rtf if self.rtf > 0 else 0.0
         next_tick = self._wall()
         self._rtf.restart(next_tick, self.sim.time)
+        if self._saver is not None:
+            self._next_save = next_tick  # at once: a restored or new fleet is on disk from the start
         try:
             while not self.stop_event.is_set():
+                if self._wall() >= self._next_save:
+                    self._save()
                 if self._steps:
                     self._run_slice()
                     self.serve_pending()
@@ -207,6 +219,18 @@ class Engine:
         finally:
             self._cancel_steps()
             self.serve_pending()
+            if self._saver is not None:
+                self._saver.save_now(capture(self.sim))
+
+    def _save(self) -> None:
+        assert self._saver is not None
+        self._saver.offer(capture(self.sim))
+        self._next_save = self._wall() + SAVE_EVERY_S
+
+    def _changed(self) -> None:
+        """The fleet changed (spawn, delete, reset): save it soon."""
+        if self._saver is not None:
+            self._next_save = min(self._next_save, self._wall() + SAVE_CHANGE_S)
 
     def _next_call(self, timeout: float) -> _Call | None:
         try:
@@ -274,6 +298,7 @@ class Engine:
         robot = self.sim.spawn(req)
         state = self.sim.state(robot)
         self._event(Spawned(state, self.sim.time))
+        self._changed()
         log.info("spawned %s (%s) at (%.3f, %.3f, %.3f) ns=%s", robot.name, robot.model.name,
                  state.x, state.y, state.yaw, robot.namespace)  # fmt: skip
         return state
@@ -283,6 +308,7 @@ class Engine:
         self._latest_scan.pop(last.namespace, None)
         self._pending_commands.pop(last.namespace, None)
         self._event(Deleted(last))
+        self._changed()
         log.info("deleted %s", last.name)
         return last
 
@@ -320,6 +346,7 @@ class Engine:
         self._pending_commands = {}
         self._latest_scan.clear()
         self._event(WorldReset(self.sim.epoch))
+        self._changed()
         self._rtf.restart(self._wall(), self.sim.time)
         self._announce_clock()
         return self.clock()
@@ -331,9 +358,7 @@ class Engine:
                 "step needs a paused simulation or --lockstep (pause it first with sim/pause)",
             )
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
-            raise FleetError(
-                ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks"
-            )
+            raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
         commands: dict[str, tuple[float, float]] = {}
         for ns, tw in req.cmd_vel.items():
             v, w = float(tw.linear.x), float(tw.angular.z)

@@ -200,6 +200,30 @@ def test_scan_matching_recovers_a_known_drift() -> None:
     assert math.hypot(x - (-2.0), y - (-0.5)) < 0.03 and abs(yaw) < 0.015  # back where the robot is
 
 
+def _scan_of_a_long_wall(x: float, y: float, yaw: float, wall_y: float) -> np.ndarray:
+    """What a lidar at (x, y) looking along ``yaw`` sees of an endless wall at ``wall_y`` above it."""
+    up = np.sin(yaw + LDS.angles)
+    with np.errstate(divide="ignore"):
+        r = np.where(up > 1e-9, (wall_y - y) / up, np.inf)
+    return np.where(r <= LDS.range_max, r, np.inf).astype(np.float32)
+
+
+def test_scan_matching_does_not_slide_along_a_long_wall() -> None:
+    """Along a wall the map cannot say where the robot is: the odometry's guess holds in that
+    direction, and only the distance to the wall and the heading are corrected."""
+    from clients.mapping.match import match
+
+    grid = LogOddsGrid((-4.0, 4.0, -2.0, 2.0), 0.05)
+    for i in range(12):
+        x = -1.5 + 0.25 * i
+        grid.integrate(x, 0.0, 0.0, _scan_of_a_long_wall(x, 0.0, 0.0, 1.0), LDS)
+    truth = (0.3, 0.0, 0.0)
+    scan = _scan_of_a_long_wall(*truth, wall_y=1.0)
+    x, y, yaw = match(grid, (truth[0] + 0.03, truth[1] + 0.025, 0.02), (0.0, 0.0), scan, LDS)
+    assert abs(y - truth[1]) < 0.005 and abs(yaw) < 0.003  # held by the wall
+    assert abs(x - (truth[0] + 0.03)) < 0.005  # along it: the odometry's x, not wherever the scan slides
+
+
 @pytest.mark.parametrize("matching", [True, False])
 def test_exploring_with_drifting_odometry(
     daemon_factory: Callable[..., Daemon], tmp_path: Path, matching: bool

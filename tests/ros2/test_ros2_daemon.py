@@ -210,7 +210,8 @@ def test_twist_stamped_drives_and_turns(ros: RosDomain) -> None:
     pub = tool.publisher("/TB3_1/cmd_vel", "geometry_msgs/msg/TwistStamped")
     header = msg("std_msgs/msg/Header", stamp=msg("builtin_interfaces/msg/Time", sec=0, nanosec=0), frame_id="")
     stamped = msg("geometry_msgs/msg/TwistStamped", header=header, twist=twist(0.0, 1.0))
-    m = drive_until(tool, "TB3_1", lambda: pub(stamped), lambda m: abs(m.twist.twist.angular.z) > 0.5)
+    # the wheels ramp up over three ticks (0.42, 0.83, 1.0 rad/s): wait past the ramp
+    m = drive_until(tool, "TB3_1", lambda: pub(stamped), lambda m: abs(m.twist.twist.angular.z) > 0.9)
     assert m.twist.twist.angular.z == pytest.approx(1.0, abs=0.05)
 
 

@@ -1,0 +1,233 @@
+"""A secured fleet made by ``fleet-security init``: TLS, users, access control, on loopback.
+
+Each role against each action, allowed and refused; a peer without credentials, with a wrong
+password or with another CA cannot connect; a user who declares the daemon's queryables or
+publishes its topics is not heard (no impersonation).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from clients import FleetClient, wait_until
+from clients.security import init
+from protocol import FleetError
+from protocol.errors import ErrorCode
+from protocol.messages import Odometry
+from protocol.zenoh_config import ZenohOptions
+from tests.conftest import ROOT, free_port, simd_command
+from tests.zraw import matching
+
+
+@dataclass
+class Secured:
+    directory: Path
+    port: int
+    proc: subprocess.Popen[str]
+
+    def client(self, user: str, timeout: float = 2.0) -> FleetClient:
+        opts = ZenohOptions(mode="client", config_file=str(self.directory / f"{user}.json5"))
+        return FleetClient(options=opts, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secured]:
+    d = tmp_path_factory.mktemp("secure") / "fleet"
+    port = free_port()
+    init(d, ["tb3_0", "tb3_1"], ["localhost", "127.0.0.1"], None, port)
+    log = (d.parent / "simd.log").open("w")
+    proc = subprocess.Popen(simd_command("-c", str(d / "simd.json5"), "--lockstep", "--world", "empty"), stdout=log,
+                            stderr=subprocess.STDOUT, text=True, cwd=ROOT)  # fmt: skip
+    s = Secured(d, port, proc)
+    deadline = time.monotonic() + 20
+    while True:
+        assert proc.poll() is None, (d.parent / "simd.log").read_text()
+        try:
+            with s.client("operator", timeout=1.0) as c:
+                c.clock()
+                c.spawn("tb3_0", 0.0, 0.0)
+                c.spawn("tb3_1", 2.0, 0.0)
+            break
+        except FleetError:
+            assert time.monotonic() < deadline, (d.parent / "simd.log").read_text()
+            time.sleep(0.1)
+    yield s
+    proc.terminate()
+    proc.wait(10)
+    log.close()
+    assert "warning" not in (d.parent / "simd.log").read_text()  # authenticated: no warning
+
+
+def _refused(call: object) -> FleetError:
+    with pytest.raises(FleetError) as e:
+        call()  # type: ignore[operator]
+    assert e.value.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT)
+    return e.value
+
+
+def _moved(op: FleetClient, ns: str) -> bool:
+    """Step the world a little and say whether ``ns`` moves; stop it again."""
+    before = op.robot(ns)
+    op.step(6)
+    after = op.robot(ns)
+    assert before is not None and after is not None
+    op.step(30)  # the watchdog stops it (0.5 s of sim time without commands)
+    return abs(after.pose.x - before.pose.x) > 1e-4 or abs(after.pose.yaw - before.pose.yaw) > 1e-4
+
+
+def _drive(c: FleetClient, ns: str) -> None:
+    pub = c.session.declare_publisher(f"fleet/{ns}/cmd_vel")  # declared: no first put lost to routing
+    wait_until(lambda: matching(pub), 3.0)
+    c.drive(ns, 0.2, 0.5)
+    time.sleep(0.3)  # a put is not acknowledged: give it time to reach the daemon, if it may
+    pub.undeclare()
+
+
+def test_the_operator_does_everything(secured: Secured) -> None:
+    with secured.client("operator") as op:
+        r = op.spawn("extra", -2.0, 2.0)
+        assert r.name == "extra"
+        _drive(op, "tb3_0")
+        assert _moved(op, "tb3_0")
+        op.pause()
+        op.delete("extra")
+        assert sorted(x.name for x in op.robots()) == ["tb3_0", "tb3_1"]
+
+
+def test_the_observer_reads_and_changes_nothing(secured: Secured) -> None:
+    with secured.client("observer") as ob, secured.client("operator") as op:
+        assert sorted(r.name for r in ob.robots()) == ["tb3_0", "tb3_1"]
+        assert ob.world().name == "empty" and ob.clock().lockstep
+        seen = threading.Event()
+        ob.on_odom("tb3_1", lambda ns, msg: seen.set())
+        op.step(3)
+        assert seen.wait(3.0)  # every topic is readable
+        err = _refused(lambda: ob.spawn("intruder", -2.0, -2.0))
+        assert "access control" in err.message and "observer" in err.message
+        _refused(lambda: ob.delete("tb3_0"))
+        _refused(lambda: ob.step(5))
+        _refused(lambda: ob.reset())
+        tick = op.clock().tick
+        _drive(ob, "tb3_0")
+        assert not _moved(op, "tb3_0")  # its cmd_vel never reached the daemon
+        assert sorted(r.name for r in op.robots()) == ["tb3_0", "tb3_1"] and op.clock().tick == tick + 36
+
+
+def test_a_driver_drives_and_reads_its_own_robot_only(secured: Secured) -> None:
+    with secured.client("driver_tb3_0") as dr, secured.client("operator") as op:
+        assert [r.name for r in dr.robots()] == ["tb3_0", "tb3_1"]  # the list is for everyone
+        mine, theirs = threading.Event(), threading.Event()
+        dr.on_odom("tb3_0", lambda ns, msg: mine.set())
+        dr.on_odom("tb3_1", lambda ns, msg: theirs.set())
+        _drive(dr, "tb3_0")
+        assert _moved(op, "tb3_0")
+        assert mine.wait(3.0) and not theirs.is_set()
+        _drive(dr, "tb3_1")
+        assert not _moved(op, "tb3_1")
+        _refused(lambda: dr.spawn("mine_too", -2.0, -2.0))
+        _refused(lambda: dr.pause())
+
+
+def test_nobody_answers_or_publishes_in_the_daemons_place(secured: Secured) -> None:
+    """A user who declares the fleet's queryables and puts fake odometry is not heard."""
+    with secured.client("observer") as rogue, secured.client("operator") as op:
+        fake = rogue.session.declare_queryable("fleet/spawn", lambda q: q.reply("fleet/spawn", b"\x80"))
+        fake_list = rogue.session.declare_queryable("fleet/robots", lambda q: q.reply("fleet/robots", b"\x80"))
+        time.sleep(0.5)
+        replies = list(op.session.get("fleet/robots?format=json", timeout=2.0))
+        assert len(replies) == 1 and replies[0].ok is not None  # the daemon's, and only it
+        assert [r["name"] for r in json.loads(replies[0].ok.payload.to_bytes())["robots"]] == ["tb3_0", "tb3_1"]
+        got: list[Odometry] = []
+        op.on_odom("tb3_0", lambda ns, msg: got.append(msg))
+        rogue.session.put("fleet/tb3_0/odom", b"not odometry")
+        op.step(2)
+        assert wait_until(lambda: len(got) >= 2, 3.0)
+        assert op.spawn("real", -2.0, -2.0).name == "real"  # answered by the daemon, not the fake
+        op.delete("real")
+        fake.undeclare()
+        fake_list.undeclare()
+
+
+def test_the_healthcheck_asks_with_its_own_config(secured: Secured) -> None:
+    """In a container the healthcheck must log in too: health.json5, made by init, lets it."""
+
+    def health(*extra: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "simd.healthcheck", "-e", f"tls/127.0.0.1:{secured.port}",
+                               *extra], capture_output=True, text=True, cwd=ROOT, timeout=60)  # fmt: skip
+
+    ok = health("-c", str(secured.directory / "health.json5"))
+    assert ok.returncode == 0 and "healthy" in ok.stdout, ok.stdout
+    assert health().returncode == 1  # no TLS, no user: refused
+
+
+def _bare_config(secured: Secured, **changes: object) -> str:
+    conf = json.loads("\n".join(line for line in (secured.directory / "observer.json5").read_text().splitlines()
+                                if not line.startswith("//")))  # fmt: skip
+    tls, auth = conf["transport"]["link"]["tls"], conf["transport"]["auth"]
+    if changes.get("no_user"):
+        del conf["transport"]["auth"]
+    if "password" in changes:
+        auth["usrpwd"]["password"] = changes["password"]
+    if "ca" in changes:
+        tls["root_ca_certificate"] = changes["ca"]
+    if "endpoint" in changes:
+        conf["connect"]["endpoints"] = [changes["endpoint"]]
+    path = secured.directory.parent / f"bare-{len(changes)}-{sorted(changes)[0]}.json5"
+    path.write_text(json.dumps(conf))
+    return str(path)
+
+
+@pytest.mark.parametrize(
+    "changes",
+    [{"no_user": True}, {"password": "guess"}, {"ca": "OTHER"}, {"endpoint": "tcp/127.0.0.1:PORT"}],
+    ids=["no credentials", "wrong password", "another CA", "plain tcp"],
+)
+def test_without_the_right_credentials_nobody_connects(
+    secured: Secured, tmp_path: Path, changes: dict[str, object]
+) -> None:
+    if changes.get("ca") == "OTHER":
+        other = tmp_path / "other"
+        init(other, [], ["localhost"], None, secured.port)  # a CA of its own
+        changes = {"ca": str(other / "ca.pem")}
+    if "endpoint" in changes:
+        changes = {"endpoint": f"tcp/127.0.0.1:{secured.port}"}
+    opts = ZenohOptions(mode="client", config_file=_bare_config(secured, **changes))
+    with pytest.raises(FleetError) as e:
+        FleetClient(options=opts, timeout=1.0).clock()
+    assert e.value.code == ErrorCode.UNAVAILABLE
+    with pytest.raises(zenoh.ZError):  # as any zenoh tool would see it
+        conf = zenoh.Config.from_file(str(opts.config_file))
+        conf.insert_json5("connect/timeout_ms", "1000")
+        zenoh.open(conf).close()
+
+
+def test_fleet_security_init_refuses_what_it_cannot_do(tmp_path: Path) -> None:
+    def run(*args: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "clients.security", "init", *args], capture_output=True,
+                              text=True, cwd=ROOT, timeout=60)  # fmt: skip
+
+    ok = run(str(tmp_path / "a"), "--robots", "tb3_0")
+    assert ok.returncode == 0, ok.stderr
+    assert oct((tmp_path / "a" / "users.txt").stat().st_mode & 0o777) == "0o600"
+    before = (tmp_path / "a" / "users.txt").read_bytes()
+    for args, message in [
+        ((str(tmp_path / "a"),), "is not empty"),
+        ((str(tmp_path / "b"), "--robots", "bad/name"), "--robots"),
+        ((str(tmp_path / "c"), "--simd-dir", "relative"), "absolute"),
+        ((str(tmp_path / "no" / "such" / "d"),), "does not exist"),
+        ((str(tmp_path / "e"), "--port", "0"), "--port"),
+    ]:
+        p = run(*args)
+        assert p.returncode == 2 and p.stderr.count("\n") == 1 and message in p.stderr, p.stderr
+    assert (tmp_path / "a" / "users.txt").read_bytes() == before
+    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
