@@ -1,20 +1,21 @@
 """``fleet-security``: everything a secured fleet needs, made in one command.
 
     fleet-security init secure/ --robots tb3_0,tb3_1 --host localhost --host 192.168.1.20
-    simd -c secure/simd.json5                        # TLS on 7447, users checked, access control on
+    simd -c secure/simd/simd.json5                   # TLS on 7447, users checked, access control on
     fleet -c secure/operator.json5 spawn tb3_0 -2 -0.5
     fleet-teleop tb3_0 -c secure/driver_tb3_0.json5
     fleet-view -c secure/observer.json5
 
 It writes, into a new directory:
 
-- a local certificate authority (``ca.pem``, ``ca-key.pem``) and the daemon's certificate
-  (``simd.pem``, ``simd-key.pem``) for the host names and addresses given, made with the
-  ``cryptography`` library (ECDSA P-256, a year of validity);
-- ``users.txt``: one random password per user, for zenoh's user/password authentication;
-- zenoh configurations: ``simd.json5`` for the daemon (TLS listener, the password file, access
-  control), one for each user, which every fleetsim client takes with ``-c``, and
-  ``health.json5`` for the container's healthcheck (``SIMD_HEALTH_CONFIG``).
+- a local certificate authority (``ca.pem``, ``ca-key.pem``), made with the ``cryptography``
+  library (ECDSA P-256, a year of validity);
+- one zenoh configuration for each user, which every fleetsim client takes with ``-c``;
+- ``simd/``, the daemon's own files, all that a container mounts: its certificate
+  (``simd.pem``, ``simd-key.pem``) for the host names and addresses given (and localhost),
+  ``users.txt`` (one random password per user, for zenoh's user/password authentication),
+  ``simd.json5`` (TLS listener, the password file, access control), ``health.json5`` for the
+  container's healthcheck (``SIMD_HEALTH_CONFIG``) and a copy of ``ca.pem``.
 
 The users are the roles of the access control (``simd`` enforces it on every message that
 reaches it):
@@ -199,14 +200,17 @@ def init(directory: Path, robots: Sequence[str], hosts: Sequence[str], simd_dir:
     ca, ca_key, cert, key = _certificates(list(dict.fromkeys([*hosts, "localhost", "127.0.0.1"])))
     directory.mkdir(exist_ok=True)
     here = directory.resolve()
-    where = simd_dir or here  # where simd finds the files (in a container: where the directory is mounted)
+    daemon_dir = directory / "simd"  # the daemon's own files, apart: they are all a container mounts
+    daemon_dir.mkdir(exist_ok=True)
+    where = simd_dir or daemon_dir.resolve()  # where simd finds them (in a container: where they are mounted)
     users = ["operator", "observer", *(f"driver_{ns}" for ns in robots)]
     passwords = {u: secrets.token_urlsafe(18) for u in users}
     _write(directory / "ca.pem", ca)
     _write(directory / "ca-key.pem", ca_key, private=True)
-    _write(directory / "simd.pem", cert)
-    _write(directory / "simd-key.pem", key, private=True)
-    _write(directory / "users.txt", "".join(f"{u}:{pw}\n" for u, pw in passwords.items()), private=True)
+    _write(daemon_dir / "ca.pem", ca)
+    _write(daemon_dir / "simd.pem", cert)
+    _write(daemon_dir / "simd-key.pem", key, private=True)
+    _write(daemon_dir / "users.txt", "".join(f"{u}:{pw}\n" for u, pw in passwords.items()), private=True)
     tls_server = {"root_ca_certificate": str(where / "ca.pem"), "listen_certificate": str(where / "simd.pem"),
                   "listen_private_key": str(where / "simd-key.pem")}  # fmt: skip
     daemon = {
@@ -216,7 +220,7 @@ def init(directory: Path, robots: Sequence[str], hosts: Sequence[str], simd_dir:
         "transport": {"link": {"tls": tls_server}, "auth": {"usrpwd": {"dictionary_file": str(where / "users.txt")}}},
         "access_control": acl(prefix, robots),
     }
-    _write(directory / "simd.json5", _json5(daemon, "simd -c simd.json5: TLS on every link, user/password, access "
+    _write(daemon_dir / "simd.json5", _json5(daemon, "simd -c simd.json5: TLS on every link, user/password, access "
                                             "control (made by fleet-security init)"), private=True)  # fmt: skip
     for u in users:
         client = {
@@ -236,7 +240,7 @@ def init(directory: Path, robots: Sequence[str], hosts: Sequence[str], simd_dir:
         "transport": {"link": {"tls": {"root_ca_certificate": str(where / "ca.pem")}},
                       "auth": {"usrpwd": {"user": "observer", "password": passwords["observer"]}}},
     }  # fmt: skip
-    _write(directory / "health.json5", _json5(health, "simd's healthcheck beside it (SIMD_HEALTH_CONFIG): observer, "
+    _write(daemon_dir / "health.json5", _json5(health, "simd's healthcheck beside it (SIMD_HEALTH_CONFIG): observer, "
                                               "through localhost"), private=True)  # fmt: skip
     return users
 
@@ -253,8 +257,8 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--port", type=int, default=PORT, help=f"TLS port (default: {PORT})")
     i.add_argument("--prefix", default=DEFAULT_PREFIX, help="the fleet's key prefix (default: %(default)s)")
     i.add_argument("--simd-dir", metavar="PATH",
-                   help="where simd will find DIR, e.g. /security when DIR is mounted there in its container "
-                        "(default: DIR's absolute path)")  # fmt: skip
+                   help="where simd will find DIR/simd, e.g. /security when it is mounted there in a container "
+                        "(default: its absolute path)")  # fmt: skip
     i.add_argument("--force", action="store_true", help="replace the files of a non-empty DIR")
     return p
 
@@ -281,12 +285,13 @@ def main(argv: list[str] | None = None) -> int:
     d = args.directory
     print(f"fleet-security: wrote a CA, simd's certificate for {', '.join(hosts)}, {len(users)} users and their "
           f"configs to {d}/")  # fmt: skip
-    print(f"  simd -c {d}/simd.json5")
+    print(f"  simd -c {d}/simd/simd.json5")
     print(f"  fleet -c {d}/operator.json5 spawn tb3_0 -2 -0.5        # operator: everything")
     print(f"  fleet-view -c {d}/observer.json5                       # observer: read only")
     for ns in robots:
         print(f"  fleet-teleop {ns} -c {d}/driver_{ns}.json5")
-    print(f"  keep {d}/ca-key.pem, simd-key.pem, users.txt and the *.json5 files private (they hold passwords)")
+    print(f"  give each user ca.pem and their own .json5 (it holds their password); {d}/simd/ is the daemon's alone, "
+          f"{d}/ca-key.pem best kept offline")  # fmt: skip
     return 0
 
 

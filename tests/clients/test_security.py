@@ -46,8 +46,8 @@ def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Secured]:
     port = free_port()
     init(d, ["tb3_0", "tb3_1"], ["localhost", "127.0.0.1"], None, port)
     log = (d.parent / "simd.log").open("w")
-    proc = subprocess.Popen(simd_command("-c", str(d / "simd.json5"), "--lockstep", "--world", "empty"), stdout=log,
-                            stderr=subprocess.STDOUT, text=True, cwd=ROOT)  # fmt: skip
+    cmd = simd_command("-c", str(d / "simd" / "simd.json5"), "--lockstep", "--world", "empty")
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
     s = Secured(d, port, proc)
     deadline = time.monotonic() + 20
     while True:
@@ -165,7 +165,7 @@ def test_the_healthcheck_asks_with_its_own_config(secured: Secured) -> None:
         return subprocess.run([sys.executable, "-m", "simd.healthcheck", "-e", f"tls/127.0.0.1:{secured.port}",
                                *extra], capture_output=True, text=True, cwd=ROOT, timeout=60)  # fmt: skip
 
-    ok = health("-c", str(secured.directory / "health.json5"))
+    ok = health("-c", str(secured.directory / "simd" / "health.json5"))
     assert ok.returncode == 0 and "healthy" in ok.stdout, ok.stdout
     assert health().returncode == 1  # no TLS, no user: refused
 
@@ -218,8 +218,8 @@ def test_fleet_security_init_refuses_what_it_cannot_do(tmp_path: Path) -> None:
 
     ok = run(str(tmp_path / "a"), "--robots", "tb3_0")
     assert ok.returncode == 0, ok.stderr
-    assert oct((tmp_path / "a" / "users.txt").stat().st_mode & 0o777) == "0o600"
-    before = (tmp_path / "a" / "users.txt").read_bytes()
+    assert oct((tmp_path / "a" / "simd" / "users.txt").stat().st_mode & 0o777) == "0o600"
+    before = (tmp_path / "a" / "simd" / "users.txt").read_bytes()
     for args, message in [
         ((str(tmp_path / "a"),), "is not empty"),
         ((str(tmp_path / "b"), "--robots", "bad/name"), "--robots"),
@@ -229,5 +229,5 @@ def test_fleet_security_init_refuses_what_it_cannot_do(tmp_path: Path) -> None:
     ]:
         p = run(*args)
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and message in p.stderr, p.stderr
-    assert (tmp_path / "a" / "users.txt").read_bytes() == before
+    assert (tmp_path / "a" / "simd" / "users.txt").read_bytes() == before
     assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()

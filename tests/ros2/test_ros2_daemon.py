@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from clients import wait_until
 from tests.ros2.conftest import DATA, RosDomain, spawn_request, twist
 from tests.ros2.standin import StandIn, dds_name, msg, parse_qos, type_hash, wait_for
 
@@ -405,7 +406,8 @@ def test_without_listen_the_fleet_protocol_shares_the_routers_port(serve: bool, 
                 assert time.monotonic() < deadline, log.read_text()
         tool = StandIn(endpoint)
         tool.wait_graph(lambda g: any(e.namespace == "/tb3_0" for e in g))
-        assert tool.service_available(*SPAWN)
+        # the graph's tokens arrive in any order: the service's may follow the node's
+        assert wait_until(lambda: tool.service_available(*SPAWN), 10.0)
         assert wait_for(tool.subscribe("/tb3_0/odom", "nav_msgs/msg/Odometry"))[0].header.frame_id == "tb3_0/odom"
         assert "fleet protocol through the ROS router" in log.read_text()
     finally:

@@ -1,0 +1,15 @@
+"""Reinforcement-learning environments on fleetsim's simulation core (docs/learn.md).
+
+Importing this package registers them with Gymnasium::
+
+    import gymnasium
+    import learn  # noqa: F401  (registers fleetsim/Navigate-v0)
+
+    env = gymnasium.make("fleetsim/Navigate-v0", world="turtlebot3_world", model="burger")
+
+They run the simulation in the calling process: no daemon, no network.
+"""
+
+from gymnasium.envs.registration import register
+
+register(id="fleetsim/Navigate-v0", entry_point="learn.navigate:NavigateEnv")

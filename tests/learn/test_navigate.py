@@ -1,0 +1,124 @@
+"""fleetsim/Navigate-v0 against Gymnasium's own checker, seeds, vector envs and bad actions."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import learn  # noqa: F401  (registers the environments)
+from learn.navigate import GOAL_RADIUS, NavigateEnv
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"discrete": True}, {"model": "waffle", "beams": 36}])
+def test_gymnasiums_checker_passes(kwargs: dict[str, Any]) -> None:
+    env = gymnasium.make("fleetsim/Navigate-v0", **kwargs)
+    check_env(env.unwrapped, skip_render_check=False)
+    env.close()
+
+
+def _rollout(env: NavigateEnv, seed: int, steps: int) -> tuple[list[np.ndarray], list[float]]:
+    obs, _ = env.reset(seed=seed)
+    observations, rewards = [obs], []
+    rng = np.random.default_rng(7)
+    for _ in range(steps):
+        obs, reward, terminated, truncated, _ = env.step(rng.uniform(-1, 1, 2).astype(np.float32))
+        observations.append(obs)
+        rewards.append(float(reward))
+        if terminated or truncated:
+            obs, _ = env.reset()
+            observations.append(obs)
+    return observations, rewards
+
+
+def test_a_seed_replays_an_episode_exactly() -> None:
+    a, b = NavigateEnv(), NavigateEnv()
+    first = _rollout(a, 3, 60)
+    again = _rollout(b, 3, 60)
+    other = _rollout(b, 4, 60)
+    assert all(np.array_equal(x, y) for x, y in zip(first[0], again[0], strict=True)) and first[1] == again[1]
+    assert not np.array_equal(first[0][0], other[0][0])
+
+
+def test_driving_at_the_goal_arrives_and_pays() -> None:
+    """A simple controller (turn to the goal, drive) reaches a goal with a clear way to it."""
+    env = NavigateEnv(lidar_noise=False)
+    obs, info = env.reset(seed=1, options={"start": (-2.0, -0.5, 0.0), "goal": (-2.0, 0.7)})
+    assert info["distance"] == pytest.approx(1.2)
+    total, arrived = 0.0, False
+    for _ in range(400):
+        bearing = float(obs[-3])
+        turn = float(np.clip(bearing, -1.0, 1.0))
+        obs, reward, terminated, truncated, info = env.step(np.array([0.9 if abs(bearing) < 0.5 else 0.0, turn],
+                                                                     np.float32))  # fmt: skip
+        total += reward
+        if terminated or truncated:
+            arrived = info["arrived"]
+            break
+    assert arrived and info["distance"] < GOAL_RADIUS
+    assert total > 10.0  # the progress made plus the arrival bonus
+
+
+def test_driving_into_a_wall_ends_the_episode_with_a_penalty() -> None:
+    env = NavigateEnv(world="turtlebot3_world", lidar_noise=False)
+    env.reset(seed=2)
+    for _ in range(300):
+        _, reward, terminated, truncated, info = env.step(np.array([1.0, 0.0], np.float32))  # straight on
+        if terminated or truncated:
+            break
+    assert terminated and info["collided"] and reward < 0
+
+
+def test_vector_envs_step_in_lockstep() -> None:
+    envs = gymnasium.make_vec("fleetsim/Navigate-v0", num_envs=3, vectorization_mode="sync")
+    obs, _ = envs.reset(seed=5)
+    assert obs.shape == (3, 28)
+    obs, rewards, *_ = envs.step(np.zeros((3, 2), np.float32))
+    assert obs.shape == (3, 28) and rewards.shape == (3,)
+    envs.close()
+
+
+def test_actions_outside_the_space_are_clipped_and_nonsense_is_refused() -> None:
+    env = NavigateEnv(world="empty", lidar_noise=False)
+    env.reset(seed=0)
+    for _ in range(3):
+        obs, *_ = env.step(np.array([0.0, -50.0], np.float32))  # clipped to the burger's -2.84 rad/s
+    assert obs[-1] == pytest.approx(-2.84, abs=1e-3)
+    for _ in range(3):
+        obs, *_ = env.step(np.array([50.0, 0.0], np.float32))  # and 0.22 m/s
+    assert obs[-2] == pytest.approx(0.22, abs=1e-3)
+    for bad in ([math.nan, 0.0], [1.0], "fast"):
+        with pytest.raises(ValueError, match="two finite numbers"):
+            env.step(bad)
+    d = NavigateEnv(world="empty", discrete=True)
+    d.reset(seed=0)
+    with pytest.raises(ValueError, match="discrete action"):
+        d.step(7)
+
+
+def test_bad_settings_say_what_to_fix() -> None:
+    with pytest.raises(ValueError, match="model must be one of"):
+        NavigateEnv(model="roomba")
+    with pytest.raises(ValueError, match="beams must divide 360"):
+        NavigateEnv(beams=7)
+    with pytest.raises(ValueError, match="render_mode"):
+        NavigateEnv(render_mode="vr")
+    env = NavigateEnv()
+    with pytest.raises(ValueError, match="'start' and 'goal'"):
+        env.reset(options={"begin": (0, 0, 0)})
+    with pytest.raises(ValueError, match=r"options\['goal'\] is \(x, y\)"):
+        env.reset(options={"goal": (1.0, math.inf)})
+    with pytest.raises(ValueError, match="would overlap"):  # the simulator's own words
+        env.reset(options={"start": (1.1, 1.1, 0.0)})  # inside a pillar
+
+
+def test_rgb_array_is_a_top_down_picture() -> None:
+    env = NavigateEnv(render_mode="rgb_array")
+    env.reset(seed=0)
+    image = env.render()
+    assert image is not None and image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
+    assert len(np.unique(image.reshape(-1, 3), axis=0)) >= 4  # floor, walls, robot, goal at least
