@@ -85,7 +85,7 @@ def check(target: Target, timeout: float, config_file: str | None = None) -> tup
     t0 = time.monotonic()
     conf = ZenohOptions(mode="client", connect=target.connect, config_file=config_file).build()
     conf.insert_json5("connect/timeout_ms", str(max(1, int(timeout * 1000))))
-    where = ", ".join(target.connect)
+    where = ", ".join(target.connect) or f"the endpoints of {config_file}"
     try:
         session: Any = zenoh.open(conf)
     except zenoh.ZError as e:
@@ -135,8 +135,13 @@ def main(argv: Sequence[str] | None = None, env: Mapping[str, str] | None = None
         except ValueError:
             timeout = DEFAULT_TIMEOUT
     target = resolve_target(args.connect, args.prefix, environ)
+    config = args.config or environ.get("SIMD_HEALTH_CONFIG") or None
+    if config and target.source == "environment":
+        # nothing better known than the defaults: the config's own endpoints (a secured daemon's
+        # health.json5 names its TLS port; the entrypoint cannot see inside simd's config file)
+        target = Target([], target.prefix, config)
     try:
-        ok, message = check(target, timeout, args.config or environ.get("SIMD_HEALTH_CONFIG") or None)
+        ok, message = check(target, timeout, config)
     except Exception as e:  # a healthcheck reports, it does not crash with a traceback
         ok, message = False, f"{type(e).__name__}: {e}"
     print(f"simd {'healthy' if ok else 'UNHEALTHY'}: {message}", flush=True)

@@ -8,6 +8,7 @@ publishes its topics is not heard (no impersonation).
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -168,6 +169,12 @@ def test_the_healthcheck_asks_with_its_own_config(secured: Secured) -> None:
     ok = health("-c", str(secured.directory / "simd" / "health.json5"))
     assert ok.returncode == 0 and "healthy" in ok.stdout, ok.stdout
     assert health().returncode == 1  # no TLS, no user: refused
+    # as in the image: no -e, nothing the entrypoint could know; the config's own endpoint
+    env = {**os.environ, "SIMD_HEALTH_CONFIG": str(secured.directory / "simd" / "health.json5"),
+           "SIMD_STATE_FILE": str(secured.directory / "no-such-file.json")}  # fmt: skip
+    image_like = subprocess.run([sys.executable, "-m", "simd.healthcheck"], capture_output=True, text=True,
+                                cwd=ROOT, timeout=60, env=env)  # fmt: skip
+    assert image_like.returncode == 0 and "health.json5" in image_like.stdout, image_like.stdout
 
 
 def _bare_config(secured: Secured, **changes: object) -> str:
