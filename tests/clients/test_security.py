@@ -20,14 +20,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from clients import FleetClient, wait_until
+from clients import FleetClient
 from clients.security import init
 from protocol import FleetError
 from protocol.errors import ErrorCode
-from protocol.messages import Odometry
 from protocol.zenoh_config import ZenohOptions
 from tests.conftest import ROOT, free_port, simd_command
-from tests.zraw import matching
 
 
 @dataclass
@@ -76,30 +74,40 @@ def _refused(call: object) -> FleetError:
     return e.value
 
 
-def _moved(op: FleetClient, ns: str) -> bool:
-    """Step the world a little and say whether ``ns`` moves; stop it again."""
-    before = op.robot(ns)
-    op.step(6)
-    after = op.robot(ns)
-    assert before is not None and after is not None
+def _drives(c: FleetClient, op: FleetClient, ns: str, tries: int = 8) -> bool:
+    """Whether ``c``'s cmd_vel moves ``ns``: a command, a short step, again until it moves or
+    ``tries`` are used (a put is not acknowledged, and a loaded machine routes it late); the
+    robot is stopped again after."""
+    start = op.robot(ns)
+    assert start is not None
+    moved = False
+    for _ in range(tries):
+        c.drive(ns, 0.2, 0.5)
+        time.sleep(0.1)
+        op.step(2)
+        now = op.robot(ns)
+        assert now is not None
+        if abs(now.pose.x - start.pose.x) > 1e-4 or abs(now.pose.yaw - start.pose.yaw) > 1e-4:
+            moved = True
+            break
     op.step(30)  # the watchdog stops it (0.5 s of sim time without commands)
-    return abs(after.pose.x - before.pose.x) > 1e-4 or abs(after.pose.yaw - before.pose.yaw) > 1e-4
+    return moved
 
 
-def _drive(c: FleetClient, ns: str) -> None:
-    pub = c.session.declare_publisher(f"fleet/{ns}/cmd_vel")  # declared: no first put lost to routing
-    wait_until(lambda: matching(pub), 3.0)
-    c.drive(ns, 0.2, 0.5)
-    time.sleep(0.3)  # a put is not acknowledged: give it time to reach the daemon, if it may
-    pub.undeclare()
+def _steps_until(op: FleetClient, seen: threading.Event, timeout: float = 10.0) -> bool:
+    """Step until ``seen`` is set (a new subscription takes a moment to reach the daemon)."""
+    deadline = time.monotonic() + timeout
+    while not seen.is_set() and time.monotonic() < deadline:
+        op.step(1)
+        seen.wait(0.05)
+    return seen.is_set()
 
 
 def test_the_operator_does_everything(secured: Secured) -> None:
     with secured.client("operator") as op:
         r = op.spawn("extra", -2.0, 2.0)
         assert r.name == "extra"
-        _drive(op, "tb3_0")
-        assert _moved(op, "tb3_0")
+        assert _drives(op, op, "tb3_0")
         op.pause()
         op.delete("extra")
         assert sorted(x.name for x in op.robots()) == ["tb3_0", "tb3_1"]
@@ -111,17 +119,15 @@ def test_the_observer_reads_and_changes_nothing(secured: Secured) -> None:
         assert ob.world().name == "empty" and ob.clock().lockstep
         seen = threading.Event()
         ob.on_odom("tb3_1", lambda ns, msg: seen.set())
-        op.step(3)
-        assert seen.wait(3.0)  # every topic is readable
+        assert _steps_until(op, seen)  # every topic is readable
         err = _refused(lambda: ob.spawn("intruder", -2.0, -2.0))
         assert "access control" in err.message and "observer" in err.message
         _refused(lambda: ob.delete("tb3_0"))
         _refused(lambda: ob.step(5))
         _refused(lambda: ob.reset())
         tick = op.clock().tick
-        _drive(ob, "tb3_0")
-        assert not _moved(op, "tb3_0")  # its cmd_vel never reached the daemon
-        assert sorted(r.name for r in op.robots()) == ["tb3_0", "tb3_1"] and op.clock().tick == tick + 36
+        assert not _drives(ob, op, "tb3_0")  # its cmd_vel never reached the daemon
+        assert sorted(r.name for r in op.robots()) == ["tb3_0", "tb3_1"] and op.clock().tick == tick + 8 * 2 + 30
 
 
 def test_a_driver_drives_and_reads_its_own_robot_only(secured: Secured) -> None:
@@ -130,11 +136,9 @@ def test_a_driver_drives_and_reads_its_own_robot_only(secured: Secured) -> None:
         mine, theirs = threading.Event(), threading.Event()
         dr.on_odom("tb3_0", lambda ns, msg: mine.set())
         dr.on_odom("tb3_1", lambda ns, msg: theirs.set())
-        _drive(dr, "tb3_0")
-        assert _moved(op, "tb3_0")
-        assert mine.wait(3.0) and not theirs.is_set()
-        _drive(dr, "tb3_1")
-        assert not _moved(op, "tb3_1")
+        assert _drives(dr, op, "tb3_0")
+        assert _steps_until(op, mine) and not theirs.is_set()
+        assert not _drives(dr, op, "tb3_1")
         _refused(lambda: dr.spawn("mine_too", -2.0, -2.0))
         _refused(lambda: dr.pause())
 
@@ -148,11 +152,17 @@ def test_nobody_answers_or_publishes_in_the_daemons_place(secured: Secured) -> N
         replies = list(op.session.get("fleet/robots?format=json", timeout=2.0))
         assert len(replies) == 1 and replies[0].ok is not None  # the daemon's, and only it
         assert [r["name"] for r in json.loads(replies[0].ok.payload.to_bytes())["robots"]] == ["tb3_0", "tb3_1"]
-        got: list[Odometry] = []
-        op.on_odom("tb3_0", lambda ns, msg: got.append(msg))
+        raw: list[bytes] = []
+        sub = op.session.declare_subscriber("fleet/tb3_0/odom", lambda s: raw.append(s.payload.to_bytes()))
+        deadline = time.monotonic() + 10.0
+        while len(raw) < 3 and time.monotonic() < deadline:  # until the subscription is surely in place
+            op.step(1)
+            time.sleep(0.05)
         rogue.session.put("fleet/tb3_0/odom", b"not odometry")
+        time.sleep(0.5)
         op.step(2)
-        assert wait_until(lambda: len(got) >= 2, 3.0)
+        assert len(raw) >= 3 and b"not odometry" not in raw
+        sub.undeclare()
         assert op.spawn("real", -2.0, -2.0).name == "real"  # answered by the daemon, not the fake
         op.delete("real")
         fake.undeclare()
