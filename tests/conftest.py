@@ -70,8 +70,11 @@ def simd_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "simd.cli", *args]
 
 
-def start_daemon(tmp_path: Path, *args: str, prefix: str = "fleet", wait: float = 15.0) -> Daemon:
-    port = free_port()
+def start_daemon(
+    tmp_path: Path, *args: str, prefix: str = "fleet", wait: float = 15.0, port: int | None = None
+) -> Daemon:
+    """A simd on loopback (on ``port``, e.g. to restart one, else a free one), once it answers."""
+    port = port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     log_path = tmp_path / f"simd-{port}.log"
     with log_path.open("w") as logf:

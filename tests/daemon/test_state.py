@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import time
@@ -12,9 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from clients import FleetClient
 from protocol import FleetError
-from tests.conftest import ROOT, Daemon, simd_command
+from tests.conftest import ROOT, Daemon, simd_command, start_daemon
 
 
 def _saved_tick(path: Path) -> int:
@@ -38,26 +36,6 @@ def _wait_saved(path: Path, tick: int, robots: int, deadline_s: float = 10.0) ->
     raise AssertionError(f"{path} never held tick {tick} with {robots} robots: {path.read_text()[:300]}")
 
 
-def _restart(d: Daemon, *args: str) -> Daemon:
-    """Start simd again on the same endpoint and wait until it answers."""
-    log_path = d.log_path.with_suffix(".restart.log") if d.log_path else None
-    with open(log_path or os.devnull, "w") as logf:
-        proc = subprocess.Popen(simd_command("-l", d.endpoint, *args), stdout=logf, stderr=subprocess.STDOUT,
-                                text=True, cwd=ROOT)  # fmt: skip
-    again = Daemon(proc, d.endpoint, d.port, d.prefix, log_path)
-    deadline = time.monotonic() + 15
-    while time.monotonic() < deadline:
-        assert proc.poll() is None, again.log()
-        try:
-            with FleetClient(d.endpoint, timeout=1.0) as c:
-                c.clock()
-            return again
-        except FleetError:
-            time.sleep(0.05)
-    again.stop()
-    raise AssertionError(f"simd did not come back:\n{again.log()}")
-
-
 def test_kill_9_and_restart_bring_the_fleet_back(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
     state = tmp_path / "fleet.json"
     d = daemon_factory("--lockstep", "--state", str(state), "--odom-noise", "0.05")
@@ -69,7 +47,7 @@ def test_kill_9_and_restart_bring_the_fleet_back(daemon_factory: Callable[..., D
     _wait_saved(state, 45, 2)
     d.proc.kill()  # no chance to save on the way out
     d.proc.wait()
-    again = _restart(d, "--lockstep", "--state", str(state), "--odom-noise", "0.05")
+    again = start_daemon(tmp_path, "--lockstep", "--state", str(state), "--odom-noise", "0.05", port=d.port)
     try:
         assert "restored 2 robots" in again.log()
         # the client of before the kill finds the fleet again by itself
