@@ -310,8 +310,9 @@ class Simulation:
             dt, _FREE_MOTION_TOLERANCE, t.x, t.y, t.yaw, x, y, yaw, v, w, dx, dy
         )
         t.x, t.y = x, y
+        twist = (t.vx, t.vy, t.wz)  # what the odometry reports moving at
         if cfg.odom_noise > 0.0:
-            self._slip(old_x, old_y, old_yaw)
+            twist = self._slip(old_x, old_y, old_yaw)
         else:  # exact odometry: the same arrays, no work
             t.odom_x, t.odom_y, t.odom_yaw = t.x, t.y, t.yaw
         self.tick += 1
@@ -332,18 +333,20 @@ class Simulation:
             x=t.odom_x,
             y=t.odom_y,
             yaw=t.odom_yaw,
-            linear_x=t.vx,
-            linear_y=t.vy,
-            angular_z=t.wz,
+            linear_x=twist[0],
+            linear_y=twist[1],
+            angular_z=twist[2],
             scan_namespaces=[t.namespaces[i] for i in due.tolist()],
             scan_rows=scans,
             epoch=self.epoch,
         )
 
-    def _slip(self, old_x: F64, old_y: F64, old_yaw: F64) -> None:
+    def _slip(self, old_x: F64, old_y: F64, old_yaw: F64) -> tuple[F64, F64, F64]:
         """Odometry from the wheels' travel with slip: each wheel's share of the tick's true motion
         (forward along the old heading, and the turn) off by ``odom_noise`` times a normal draw;
-        sideways motion (a robot pushed) is not seen by the wheels at all."""
+        sideways motion (a robot pushed) is not seen by the wheels at all. Returns the twist the
+        wheels measured (forward, sideways 0, turn rate), which the odometry reports with the
+        pose, as a robot's encoders give both."""
         t = self.robots
         n = len(t)
         ds = (t.x - old_x) * np.cos(old_yaw) + (t.y - old_y) * np.sin(old_yaw)
@@ -356,6 +359,8 @@ class Simulation:
         t.odom_x = t.odom_x + ds_o * np.cos(mid)  # new arrays: a snapshot may still hold the old
         t.odom_y = t.odom_y + ds_o * np.sin(mid)
         t.odom_yaw = np.arctan2(np.sin(t.odom_yaw + dth_o), np.cos(t.odom_yaw + dth_o))
+        dt = self.config.dt
+        return ds_o / dt, np.zeros(n), dth_o / dt
 
     def _scan(self, rows: I64, x: F64, y: F64, yaw: F64, rid: I64, outline: F64, lidar_off: F64) -> F32:
         """The scans of the robots in ``rows``, against every robot's outline at (x, y, yaw)."""

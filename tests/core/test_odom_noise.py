@@ -6,6 +6,7 @@ import math
 import subprocess
 
 import numpy as np
+import pytest
 
 from protocol.control import SpawnRequest
 from simd.core.sim import SimConfig, Simulation
@@ -52,3 +53,20 @@ def test_a_bad_odom_noise_is_one_line() -> None:
         p.returncode == 2
         and p.stderr.strip() == "simd: error: --odom-noise must be in 0..0.5 (a fraction of each wheel's travel)"
     )
+
+
+def test_the_odometry_twist_is_the_slipping_wheels_own() -> None:
+    """Pose and twist come from the same wheel travel, as a robot's encoders give both: turning
+    at the reported rate for a tick gives the next reported heading, not the true one."""
+    sim = Simulation(load_world("empty"), SimConfig(odom_noise=0.05, seed=3, lidar_thread=False, cmd_timeout=0))
+    sim.spawn(SpawnRequest(name="r", x=0.0, y=0.0))
+    sim.command_many({"r": (0.2, 0.4)})
+    for _ in range(30):  # past the wheels' ramp
+        sim.step()
+    before = sim.step()
+    after = sim.step()
+    true_w = sim.state(sim.robots.robots[0]).angular_velocity
+    turned = math.remainder(float(after.yaw[0]) - float(before.yaw[0]), math.tau)
+    assert turned == pytest.approx(float(after.angular_z[0]) * sim.config.dt, abs=1e-12)
+    assert float(after.angular_z[0]) != pytest.approx(true_w, abs=1e-9)  # the slip shows in the twist too
+    assert float(after.linear_y[0]) == 0.0  # wheels do not see sideways motion
