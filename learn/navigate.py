@@ -31,28 +31,31 @@ from typing import Any
 
 import gymnasium
 import numpy as np
-import numpy.typing as npt
 from gymnasium import spaces
 
+from learn.task import (
+    ARRIVAL_REWARD,
+    COLLISION_REWARD,
+    DISCRETE_TURNS,
+    F32,
+    GOAL_RADIUS,
+    PROGRESS_REWARD,
+    collided,
+    command,
+    distance,
+    footprint_ranges,
+    free_pose,
+    observation_bounds,
+    observe,
+)
 from protocol.control import SpawnRequest
 from protocol.errors import FleetError
 from simd.core.mapworld import load_world_or_map
 from simd.core.models import MODELS
 from simd.core.sim import SimConfig, Simulation
-from simd.core.snapshot import TickSnapshot
-
-F32 = npt.NDArray[np.float32]
 
 TICKS_A_STEP = 6  # one lidar period at 30 Hz: every step sees a new scan
-GOAL_RADIUS = 0.2
-COLLISION_MARGIN = 0.02
-PROGRESS_REWARD = 10.0
-ARRIVAL_REWARD = 10.0
-COLLISION_REWARD = -10.0
 MIN_START_GOAL_M = 1.0
-#: the discrete actions: turn rates (rad/s) at DISCRETE_SPEED m/s, as the ROBOTIS DQN stage
-DISCRETE_TURNS = (-1.5, -0.75, 0.0, 0.75, 1.5)
-DISCRETE_SPEED = 0.15
 ROBOT = "agent"
 
 
@@ -86,12 +89,10 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self.sim = Simulation(load_world_or_map(world), SimConfig(noise=lidar_noise, lidar_thread=False, cmd_timeout=0))
         spec = self.sim.config.lidar
         self.range_max = spec.range_max
-        self._footprint = _footprint_ranges(self.model, spec.samples)
+        self._footprint = footprint_ranges(self.model, spec.samples)
         x0, x1, y0, y1 = self.sim.world.bounds
         diagonal = math.hypot(x1 - x0, y1 - y0)
-        vmax, wmax = self.model.max_linear_velocity, self.model.max_angular_velocity
-        low = np.concatenate([np.zeros(beams), [0.0, -math.pi, -vmax, -wmax]]).astype(np.float32)
-        high = np.concatenate([np.ones(beams), [diagonal, math.pi, vmax, wmax]]).astype(np.float32)
+        low, high = observation_bounds(self.model, beams, diagonal)
         self._obs_box = spaces.Box(low, high, dtype=np.float32)
         self.observation_space = self._obs_box
         # (linear, angular) as fractions of the model's limits: the symmetric, normalised box that
@@ -99,12 +100,11 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self.action_space: spaces.Space[Any] = (
             spaces.Discrete(len(DISCRETE_TURNS)) if discrete else spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         )
-        self._limits = np.array([vmax, wmax])
+        self._discrete = discrete
         self.goal = (0.0, 0.0)
         self.steps = 0
         self._distance = 0.0
         self._scan = np.zeros(spec.samples, dtype=np.float32)
-        self._snap: TickSnapshot | None = None
         self._window: Any = None
 
     # -- the gymnasium API ------------------------------------------------------------------
@@ -180,21 +180,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
     # -- the pieces -------------------------------------------------------------------------
 
     def _command(self, action: Any) -> tuple[float, float]:
-        if isinstance(self.action_space, spaces.Discrete):
-            k = int(action)
-            if not 0 <= k < len(DISCRETE_TURNS):
-                raise ValueError(f"a discrete action is 0..{len(DISCRETE_TURNS) - 1}, got {action!r}")
-            return DISCRETE_SPEED, DISCRETE_TURNS[k]
-        try:
-            a = np.asarray(action, dtype=np.float64).reshape(-1)
-        except (TypeError, ValueError):
-            a = np.zeros(0)
-        if a.shape != (2,) or not np.all(np.isfinite(a)):
-            raise ValueError(
-                f"an action is two finite numbers (linear, angular in -1..1 of the limits), got {action!r}"
-            )
-        v, w = np.clip(a, -1.0, 1.0) * self._limits
-        return float(v), float(w)
+        return command(action, self.model, self._discrete)
 
     def _advance(self, v: float, w: float) -> None:
         """Hold (v, w) for one lidar period; keep the robot's scan of it."""
@@ -205,48 +191,22 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             snap = self.sim.step()
             if ROBOT in snap.scan_namespaces:
                 self._scan = np.array(snap.scans[snap.scan_namespaces.index(ROBOT)])
-        self._snap = snap
 
     def _free_pose(self, rng: np.random.Generator) -> tuple[float, float, float]:
-        """A pose where the footprint is clear, with a margin, inside the bounds."""
-        x0, x1, y0, y1 = self.sim.world.bounds
-        pad = 0.3
-        for _ in range(10_000):
-            x, y = float(rng.uniform(x0 + pad, x1 - pad)), float(rng.uniform(y0 + pad, y1 - pad))
-            yaw = float(rng.uniform(-math.pi, math.pi))
-            try:
-                self.sim.validate_spawn(SpawnRequest(name="probe", model=self.model.name, x=x, y=y, yaw=yaw))
-            except FleetError:
-                continue
-            # room around it: the footprint moved 15 cm each way is still clear
-            if all(self.sim.physics.blocker(self.model, x + dx, y + dy, yaw) is None
-                   for dx, dy in ((0.15, 0), (-0.15, 0), (0, 0.15), (0, -0.15))):  # fmt: skip
-                return x, y, yaw
-        raise RuntimeError(f"no free place in {self.sim.world.name!r} after 10 000 draws")
+        return free_pose(self.sim, self.model, rng)
 
     def _pose(self) -> tuple[float, float, float]:
         s = self.sim.state(self.sim.find(ROBOT))  # type: ignore[arg-type]
         return s.x, s.y, s.yaw
 
     def _goal_distance(self) -> float:
-        x, y, _ = self._pose()
-        return math.hypot(self.goal[0] - x, self.goal[1] - y)
+        return distance(self.sim, ROBOT, self.goal)
 
     def _collided(self) -> bool:
-        r = np.where(np.isneginf(self._scan), 0.0, self._scan)
-        return bool(np.any(r < self._footprint + COLLISION_MARGIN))
+        return collided(self._scan, self._footprint)
 
     def _observation(self) -> F32:
-        r = np.where(np.isposinf(self._scan), self.range_max, np.where(np.isneginf(self._scan), 0.0, self._scan))
-        sectors = np.clip(r.reshape(self.beams, -1).min(axis=1) / self.range_max, 0.0, 1.0)
-        x, y, yaw = self._pose()
-        bearing = math.remainder(math.atan2(self.goal[1] - y, self.goal[0] - x) - yaw, math.tau)
-        s = self.sim.state(self.sim.find(ROBOT))  # type: ignore[arg-type]
-        vmax, wmax = self.model.max_linear_velocity, self.model.max_angular_velocity
-        tail = [self._goal_distance(), bearing, np.clip(s.linear_velocity, -vmax, vmax),
-                np.clip(s.angular_velocity, -wmax, wmax)]  # fmt: skip
-        obs = np.concatenate([sectors, tail]).astype(np.float32)
-        return np.clip(obs, self._obs_box.low, self._obs_box.high).astype(np.float32)
+        return observe(self.sim, ROBOT, self.goal, self._scan, self.beams, self._obs_box.low, self._obs_box.high)
 
     def _info(self) -> dict[str, Any]:
         x, y, yaw = self._pose()
@@ -272,20 +232,3 @@ def _chosen(options: dict[str, Any] | None) -> tuple[tuple[float, float, float] 
             raise ValueError(f"options['goal'] is (x, y), got {opts['goal']!r}")
         goal = (g[0], g[1])
     return start, goal
-
-
-def _footprint_ranges(model: Any, samples: int) -> npt.NDArray[np.float64]:
-    """For each lidar beam, how far from the lidar the robot's own outline is along it."""
-    angles = np.arange(samples) * (2 * math.pi / samples)
-    ox, oy = model.lidar_offset
-    pts = model.outline - np.array([ox, oy])
-    a, b = pts, np.roll(pts, -1, axis=0)
-    d = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (beams, 2)
-    e = b - a  # (edges, 2)
-    # solve t*d = a + u*e for t >= 0, 0 <= u <= 1 per beam and edge
-    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / den
-        u = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / den
-    t = np.where((den != 0) & (t >= 0) & (u >= 0) & (u <= 1), t, np.inf)
-    return np.asarray(t.min(axis=1))

@@ -11,7 +11,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import learn  # noqa: F401  (registers the environments)
-from learn.navigate import GOAL_RADIUS, NavigateEnv
+from learn.navigate import NavigateEnv
+from learn.task import GOAL_RADIUS
 
 
 @pytest.mark.parametrize("kwargs", [{}, {"discrete": True}, {"model": "waffle", "beams": 36}])
@@ -122,3 +123,35 @@ def test_rgb_array_is_a_top_down_picture() -> None:
     image = env.render()
     assert image is not None and image.dtype == np.uint8 and image.ndim == 3 and image.shape[2] == 3
     assert len(np.unique(image.reshape(-1, 3), axis=0)) >= 4  # floor, walls, robot, goal at least
+
+
+# -- the fleet (PettingZoo) ------------------------------------------------------------------
+
+
+def test_pettingzoos_parallel_api_and_seed_tests_pass() -> None:
+    from pettingzoo.test import parallel_api_test, parallel_seed_test
+
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    parallel_api_test(FleetNavigateEnv(robots=3), num_cycles=200)
+    parallel_seed_test(lambda: FleetNavigateEnv(robots=3))
+
+
+def test_robots_see_each_other_and_leave_the_world_when_done() -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    env = FleetNavigateEnv(robots=4, lidar_noise=False)
+    observations, _ = env.reset(seed=11)
+    assert sorted(observations) == ["tb3_0", "tb3_1", "tb3_2", "tb3_3"] and len(env.sim) == 4
+    steps = 0
+    while env.agents and steps < 500:
+        # full speed at their goals: they meet, bump or arrive; each leaves when it is done
+        actions = {a: np.array([1.0, float(np.clip(observations[a][-3], -1, 1))], np.float32) for a in env.agents}
+        observations, _, terms, truncs, _ = env.step(actions)
+        for a in terms:
+            if terms[a] or truncs[a]:
+                assert a not in env.agents and env.sim.find(a) is None
+        steps += 1
+    assert not env.agents and len(env.sim) == 0
+    with pytest.raises(ValueError, match="not in the episode"):
+        env.step({"tb3_0": np.zeros(2, np.float32)})

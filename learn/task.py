@@ -1,0 +1,116 @@
+"""What one navigating robot sees, does and is judged by: shared by the single-robot and the
+fleet environments (learn/navigate.py, learn/navigate_fleet.py)."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from protocol.control import SpawnRequest
+from protocol.errors import FleetError
+from simd.core.models import RobotModel
+from simd.core.sim import Simulation
+
+F32 = npt.NDArray[np.float32]
+
+GOAL_RADIUS = 0.2
+COLLISION_MARGIN = 0.02
+PROGRESS_REWARD = 10.0
+ARRIVAL_REWARD = 10.0
+COLLISION_REWARD = -10.0
+#: the discrete actions: turn rates (rad/s) at DISCRETE_SPEED m/s, as the ROBOTIS DQN stage
+DISCRETE_TURNS = (-1.5, -0.75, 0.0, 0.75, 1.5)
+DISCRETE_SPEED = 0.15
+
+
+def observation_bounds(model: RobotModel, beams: int, diagonal: float) -> tuple[F32, F32]:
+    """The observation box: sectors 0..1, goal distance 0..diagonal, bearing ±π, the velocities."""
+    vmax, wmax = model.max_linear_velocity, model.max_angular_velocity
+    low = np.concatenate([np.zeros(beams), [0.0, -math.pi, -vmax, -wmax]]).astype(np.float32)
+    high = np.concatenate([np.ones(beams), [diagonal, math.pi, vmax, wmax]]).astype(np.float32)
+    return low, high
+
+
+def command(action: Any, model: RobotModel, discrete: bool) -> tuple[float, float]:
+    """(v m/s, w rad/s) for an action: a discrete choice, or fractions -1..1 of the limits (clipped)."""
+    if discrete:
+        try:
+            k = int(action)
+        except (TypeError, ValueError):
+            k = -1
+        if not 0 <= k < len(DISCRETE_TURNS):
+            raise ValueError(f"a discrete action is 0..{len(DISCRETE_TURNS) - 1}, got {action!r}")
+        return DISCRETE_SPEED, DISCRETE_TURNS[k]
+    try:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (2,) or not np.all(np.isfinite(a)):
+        raise ValueError(f"an action is two finite numbers (linear, angular in -1..1 of the limits), got {action!r}")
+    v, w = np.clip(a, -1.0, 1.0) * np.array([model.max_linear_velocity, model.max_angular_velocity])
+    return float(v), float(w)
+
+
+def free_pose(
+    sim: Simulation, model: RobotModel, rng: np.random.Generator, keep_clear: tuple[tuple[float, float], ...] = ()
+) -> tuple[float, float, float]:
+    """A pose where the footprint is clear with 15 cm to spare each way, inside the bounds, and
+    at least a metre from the points in ``keep_clear`` (other robots' starts and goals)."""
+    x0, x1, y0, y1 = sim.world.bounds
+    pad = 0.3
+    for _ in range(10_000):
+        x, y = float(rng.uniform(x0 + pad, x1 - pad)), float(rng.uniform(y0 + pad, y1 - pad))
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        if any(math.dist((x, y), p) < 1.0 for p in keep_clear):
+            continue
+        try:
+            sim.validate_spawn(SpawnRequest(name="probe", model=model.name, x=x, y=y, yaw=yaw))
+        except FleetError:
+            continue
+        if all(sim.physics.blocker(model, x + dx, y + dy, yaw) is None
+               for dx, dy in ((0.15, 0), (-0.15, 0), (0, 0.15), (0, -0.15))):  # fmt: skip
+            return x, y, yaw
+    raise RuntimeError(f"no free place in {sim.world.name!r} after 10 000 draws")
+
+
+def collided(scan: F32, footprint: npt.NDArray[np.float64]) -> bool:
+    """A return closer than COLLISION_MARGIN outside the footprint, or below the minimum range."""
+    r = np.where(np.isneginf(scan), 0.0, scan)
+    return bool(np.any(r < footprint + COLLISION_MARGIN))
+
+
+def observe(sim: Simulation, name: str, goal: tuple[float, float], scan: F32, beams: int, low: F32, high: F32) -> F32:
+    """One robot's observation (see learn/navigate.py)."""
+    range_max = sim.config.lidar.range_max
+    r = np.where(np.isposinf(scan), range_max, np.where(np.isneginf(scan), 0.0, scan))
+    sectors = np.clip(r.reshape(beams, -1).min(axis=1) / range_max, 0.0, 1.0)
+    s = sim.state(sim.find(name))  # type: ignore[arg-type]
+    bearing = math.remainder(math.atan2(goal[1] - s.y, goal[0] - s.x) - s.yaw, math.tau)
+    tail = [math.hypot(goal[0] - s.x, goal[1] - s.y), bearing, s.linear_velocity, s.angular_velocity]
+    obs: F32 = np.clip(np.concatenate([sectors, tail]), low, high).astype(np.float32)
+    return obs
+
+
+def distance(sim: Simulation, name: str, goal: tuple[float, float]) -> float:
+    s = sim.state(sim.find(name))  # type: ignore[arg-type]
+    return math.hypot(goal[0] - s.x, goal[1] - s.y)
+
+
+def footprint_ranges(model: RobotModel, samples: int) -> npt.NDArray[np.float64]:
+    """For each lidar beam, how far from the lidar the robot's own outline is along it."""
+    angles = np.arange(samples) * (2 * math.pi / samples)
+    ox, oy = model.lidar_offset
+    pts = model.outline - np.array([ox, oy])
+    a, b = pts, np.roll(pts, -1, axis=0)
+    d = np.stack([np.cos(angles), np.sin(angles)], axis=1)  # (beams, 2)
+    e = b - a  # (edges, 2)
+    # solve t*d = a + u*e for t >= 0, 0 <= u <= 1 per beam and edge
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (a[None, :, 0] * e[None, :, 1] - a[None, :, 1] * e[None, :, 0]) / den
+        u = (a[None, :, 0] * d[:, None, 1] - a[None, :, 1] * d[:, None, 0]) / den
+    t = np.where((den != 0) & (t >= 0) & (u >= 0) & (u <= 1), t, np.inf)
+    return np.asarray(t.min(axis=1))
