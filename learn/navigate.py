@@ -22,6 +22,8 @@ takes milliseconds instead of a Gazebo restart.
   footprint clear of everything, with room to see; at least a metre apart) from the env's
   generator; ``reset(seed=s)`` reseeds it and the lidar noise, so a seed replays an episode
   exactly. ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes either.
+- **Remote**: with ``endpoint=`` the same episodes run on a simd in lockstep over Zenoh (one
+  ``sim/step`` a step, the observation in its reply), to be watched in the viewer or ROS tools.
 """
 
 from __future__ import annotations
@@ -42,11 +44,11 @@ from learn.task import (
     PROGRESS_REWARD,
     collided,
     command,
-    distance,
     footprint_ranges,
     free_pose,
     observation_bounds,
     observe,
+    state_of,
 )
 from protocol.control import SpawnRequest
 from protocol.errors import FleetError
@@ -73,6 +75,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         max_steps: int = 500,
         lidar_noise: bool = True,
         render_mode: str | None = None,
+        endpoint: str | None = None,
+        prefix: str = "fleet",
     ) -> None:
         if model not in MODELS:
             raise ValueError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
@@ -90,6 +94,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         spec = self.sim.config.lidar
         self.range_max = spec.range_max
         self._footprint = footprint_ranges(self.model, spec.samples)
+        self.remote = _Remote(endpoint, prefix, self.sim.world.name) if endpoint is not None else None
+        self._state: tuple[tuple[float, float, float], tuple[float, float]] = ((0.0, 0.0, 0.0), (0.0, 0.0))
         x0, x1, y0, y1 = self.sim.world.bounds
         diagonal = math.hypot(x1 - x0, y1 - y0)
         low, high = observation_bounds(self.model, beams, diagonal)
@@ -112,9 +118,12 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[F32, dict[str, Any]]:
         super().reset(seed=seed)
         rng = self.np_random
-        self.sim.reset(int(rng.integers(2**31)))  # the lidar noise follows the env's generator
+        noise_seed = int(rng.integers(2**31))  # the lidar noise follows the env's generator
+        self.sim.reset(noise_seed)
         if self.sim.find(ROBOT) is not None:
             self.sim.delete(ROBOT)
+        if self.remote is not None:
+            self.remote.reset(noise_seed)
         chosen_start, chosen_goal = _chosen(options)
         for _ in range(1000):
             start = chosen_start or self._free_pose(rng)
@@ -122,14 +131,14 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             if chosen_start is None and chosen_goal is None and math.dist(start[:2], goal) < MIN_START_GOAL_M:
                 continue
             try:
-                self.sim.spawn(SpawnRequest(name=ROBOT, model=self.model.name, x=start[0], y=start[1], yaw=start[2]))
+                self._spawn(start)
             except FleetError as e:
                 raise ValueError(f"options['start'] {start}: {e.message}") from None
             self.goal = goal
             self._advance(0.0, 0.0)
             if not self._collided() or chosen_start is not None:
                 break
-            self.sim.delete(ROBOT)
+            self._delete()
         else:
             raise RuntimeError(f"no free start in {self.sim.world.name!r} after 1000 draws")
         self.steps = 0
@@ -175,6 +184,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         return None
 
     def close(self) -> None:
+        if self.remote is not None:
+            self.remote.client.close()
         self.sim.close()
 
     # -- the pieces -------------------------------------------------------------------------
@@ -182,8 +193,24 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
     def _command(self, action: Any) -> tuple[float, float]:
         return command(action, self.model, self._discrete)
 
+    def _spawn(self, start: tuple[float, float, float]) -> None:
+        req = SpawnRequest(name=ROBOT, model=self.model.name, x=start[0], y=start[1], yaw=start[2])
+        if self.remote is not None:
+            self.remote.client.spawn(req.name, req.x, req.y, req.yaw, model=req.model)
+        else:
+            self.sim.spawn(req)
+
+    def _delete(self) -> None:
+        if self.remote is not None:
+            self.remote.client.delete(ROBOT)
+        else:
+            self.sim.delete(ROBOT)
+
     def _advance(self, v: float, w: float) -> None:
-        """Hold (v, w) for one lidar period; keep the robot's scan of it."""
+        """Hold (v, w) for one lidar period; keep the robot's scan, pose and velocity of it."""
+        if self.remote is not None:
+            self._scan, self._state = self.remote.step(v, w)
+            return
         robot = self.sim.find(ROBOT)
         assert robot is not None
         for _ in range(TICKS_A_STEP):
@@ -191,22 +218,25 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             snap = self.sim.step()
             if ROBOT in snap.scan_namespaces:
                 self._scan = np.array(snap.scans[snap.scan_namespaces.index(ROBOT)])
+        self._state = state_of(self.sim, ROBOT)
 
     def _free_pose(self, rng: np.random.Generator) -> tuple[float, float, float]:
         return free_pose(self.sim, self.model, rng)
 
     def _pose(self) -> tuple[float, float, float]:
-        s = self.sim.state(self.sim.find(ROBOT))  # type: ignore[arg-type]
-        return s.x, s.y, s.yaw
+        return self._state[0]
 
     def _goal_distance(self) -> float:
-        return distance(self.sim, ROBOT, self.goal)
+        x, y, _ = self._pose()
+        return math.hypot(self.goal[0] - x, self.goal[1] - y)
 
     def _collided(self) -> bool:
         return collided(self._scan, self._footprint)
 
     def _observation(self) -> F32:
-        return observe(self.sim, ROBOT, self.goal, self._scan, self.beams, self._obs_box.low, self._obs_box.high)
+        pose, velocity = self._state
+        return observe(pose, velocity, self.goal, self._scan, self.beams, self.range_max, self._obs_box.low,
+                       self._obs_box.high)  # fmt: skip
 
     def _info(self) -> dict[str, Any]:
         x, y, yaw = self._pose()
@@ -232,3 +262,40 @@ def _chosen(options: dict[str, Any] | None) -> tuple[tuple[float, float, float] 
             raise ValueError(f"options['goal'] is (x, y), got {opts['goal']!r}")
         goal = (g[0], g[1])
     return start, goal
+
+
+class _Remote:
+    """A running simd in lockstep, stepped over Zenoh: the same episodes as in process, where the
+    training can be watched in fleet-view or ROS tools. The env owns the daemon's clock: a reset
+    resets the daemon's world (every robot to its spawn pose, the noise reseeded)."""
+
+    def __init__(self, endpoint: str, prefix: str, world: str) -> None:
+        from clients.api import FleetClient
+
+        self.client = FleetClient(endpoint, prefix=prefix, timeout=10.0)
+        try:
+            clock = self.client.clock()
+            there = self.client.world().name
+        except FleetError as e:
+            self.client.close()
+            raise ValueError(f"no fleetsim daemon at {endpoint}: {e.message}") from None
+        if not clock.paused:
+            self.client.close()
+            raise ValueError(f"the daemon at {endpoint} must run in lockstep (simd --lockstep) or be paused")
+        if there != world:
+            self.client.close()
+            raise ValueError(f"the daemon at {endpoint} runs world {there!r}, this env {world!r}: make them the same")
+
+    def reset(self, noise_seed: int) -> None:
+        self.client.reset(noise_seed)
+        if self.client.robot(ROBOT) is not None:
+            self.client.delete(ROBOT)
+
+    def step(self, v: float, w: float) -> tuple[F32, tuple[tuple[float, float, float], tuple[float, float]]]:
+        reply = self.client.step(TICKS_A_STEP, cmd_vel={ROBOT: (v, w)}, observe=[ROBOT])
+        seen = reply.observations[ROBOT]
+        assert seen.scan is not None  # a lidar period always holds one scan
+        scan = np.frombuffer(seen.scan.ranges, dtype="<f4").astype(np.float32)
+        p, q, t = seen.odom.pose.pose.position, seen.odom.pose.pose.orientation, seen.odom.twist.twist
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        return scan, ((p.x, p.y, yaw), (t.linear.x, t.angular.z))

@@ -32,11 +32,11 @@ from learn.task import (
     PROGRESS_REWARD,
     collided,
     command,
-    distance,
     footprint_ranges,
     free_pose,
     observation_bounds,
     observe,
+    state_of,
 )
 from protocol.control import SpawnRequest
 from simd.core.mapworld import load_world_or_map
@@ -116,7 +116,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             raise RuntimeError(f"no room for {len(self.possible_agents)} robots in {self.sim.world.name!r}")
         self.agents = list(self.possible_agents)
         self.steps = 0
-        self._distance = {a: distance(self.sim, a, self.goals[a]) for a in self.agents}
+        self._distance = {a: self._goal_distance(a) for a in self.agents}
         return {a: self._observe(a) for a in self.agents}, {a: self._info(a) for a in self.agents}
 
     def _place(self) -> bool:
@@ -144,7 +144,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self.steps += 1
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         for a in self.agents:
-            d = distance(self.sim, a, self.goals[a])
+            d = self._goal_distance(a)
             reward = PROGRESS_REWARD * (self._distance[a] - d)
             self._distance[a] = d
             arrived = d < GOAL_RADIUS
@@ -179,7 +179,13 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
                 self._scans[ns] = np.array(snap.scans[i])
 
     def _observe(self, agent: str) -> F32:
-        return observe(self.sim, agent, self.goals[agent], self._scans[agent], self.beams, self._low, self._high)
+        pose, velocity = state_of(self.sim, agent)
+        return observe(pose, velocity, self.goals[agent], self._scans[agent], self.beams,
+                       self.sim.config.lidar.range_max, self._low, self._high)  # fmt: skip
+
+    def _goal_distance(self, agent: str) -> float:
+        (x, y, _), _ = state_of(self.sim, agent)
+        return math.hypot(self.goals[agent][0] - x, self.goals[agent][1] - y)
 
     def _info(self, agent: str) -> dict[str, Any]:
         s = self.sim.state(self.sim.find(agent))  # type: ignore[arg-type]

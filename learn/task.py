@@ -82,21 +82,24 @@ def collided(scan: F32, footprint: npt.NDArray[np.float64]) -> bool:
     return bool(np.any(r < footprint + COLLISION_MARGIN))
 
 
-def observe(sim: Simulation, name: str, goal: tuple[float, float], scan: F32, beams: int, low: F32, high: F32) -> F32:
-    """One robot's observation (see learn/navigate.py)."""
-    range_max = sim.config.lidar.range_max
+def observe(
+    pose: tuple[float, float, float], velocity: tuple[float, float], goal: tuple[float, float], scan: F32,
+    beams: int, range_max: float, low: F32, high: F32,
+) -> F32:  # fmt: skip
+    """One robot's observation (see learn/navigate.py) from its pose, (linear, angular) velocity and scan."""
     r = np.where(np.isposinf(scan), range_max, np.where(np.isneginf(scan), 0.0, scan))
     sectors = np.clip(r.reshape(beams, -1).min(axis=1) / range_max, 0.0, 1.0)
-    s = sim.state(sim.find(name))  # type: ignore[arg-type]
-    bearing = math.remainder(math.atan2(goal[1] - s.y, goal[0] - s.x) - s.yaw, math.tau)
-    tail = [math.hypot(goal[0] - s.x, goal[1] - s.y), bearing, s.linear_velocity, s.angular_velocity]
+    x, y, yaw = pose
+    bearing = math.remainder(math.atan2(goal[1] - y, goal[0] - x) - yaw, math.tau)
+    tail = [math.hypot(goal[0] - x, goal[1] - y), bearing, velocity[0], velocity[1]]
     obs: F32 = np.clip(np.concatenate([sectors, tail]), low, high).astype(np.float32)
     return obs
 
 
-def distance(sim: Simulation, name: str, goal: tuple[float, float]) -> float:
+def state_of(sim: Simulation, name: str) -> tuple[tuple[float, float, float], tuple[float, float]]:
+    """A robot's pose and (linear, angular) velocity in an in-process simulation."""
     s = sim.state(sim.find(name))  # type: ignore[arg-type]
-    return math.hypot(goal[0] - s.x, goal[1] - s.y)
+    return (s.x, s.y, s.yaw), (s.linear_velocity, s.angular_velocity)
 
 
 def footprint_ranges(model: RobotModel, samples: int) -> npt.NDArray[np.float64]:

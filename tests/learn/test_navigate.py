@@ -155,3 +155,41 @@ def test_robots_see_each_other_and_leave_the_world_when_done() -> None:
     assert not env.agents and len(env.sim) == 0
     with pytest.raises(ValueError, match="not in the episode"):
         env.step({"tb3_0": np.zeros(2, np.float32)})
+
+
+# -- remote: a running simd in lockstep --------------------------------------------------------
+
+
+def test_a_remote_daemon_gives_the_same_episode_as_the_core_in_process(daemon_factory: Any) -> None:
+    d = daemon_factory("--lockstep")  # lidar noise on, as the env's default
+    remote = NavigateEnv(endpoint=d.endpoint)
+    local = NavigateEnv()
+    rng = np.random.default_rng(3)
+    actions = [rng.uniform(-1, 1, 2).astype(np.float32) for _ in range(40)]
+    for env in (remote, local):
+        env.reset(seed=9)
+    here: list[tuple[Any, float, Any, bool]] = []
+    there: list[tuple[Any, float, Any, bool]] = []
+    for a in actions:
+        for env, out in ((local, here), (remote, there)):
+            obs, reward, terminated, _, info = env.step(a)
+            out.append((obs, reward, info["pose"][:2], terminated))
+        if here[-1][3]:
+            break
+    assert len(here) == len(there) > 1
+    for (o1, r1, p1, t1), (o2, r2, p2, t2) in zip(here, there, strict=True):
+        assert p1 == p2 and t1 == t2  # the same positions, bit for bit
+        assert np.allclose(o1, o2, atol=1e-5) and r1 == pytest.approx(r2, abs=1e-6)  # yaw went through a quaternion
+    c = d.client()
+    assert [r.name for r in c.robots()] == ["agent"]  # the episode is there to watch
+    remote.close()
+    local.close()
+
+
+def test_a_remote_daemon_must_be_in_lockstep_and_in_the_same_world(daemon_factory: Any) -> None:
+    running = daemon_factory()
+    with pytest.raises(ValueError, match="--lockstep"):
+        NavigateEnv(endpoint=running.endpoint)
+    other = daemon_factory("--lockstep", "--world", "empty")
+    with pytest.raises(ValueError, match="runs world 'empty'"):
+        NavigateEnv(endpoint=other.endpoint)
