@@ -42,6 +42,7 @@ from learn.task import (
     F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
+    check_settings,
     collided,
     command,
     footprint_ranges,
@@ -53,7 +54,6 @@ from learn.task import (
 from protocol.control import SpawnRequest
 from protocol.errors import FleetError
 from simd.core.mapworld import load_world_or_map
-from simd.core.models import MODELS
 from simd.core.sim import SimConfig, Simulation
 
 TICKS_A_STEP = 6  # one lidar period at 30 Hz: every step sees a new scan
@@ -78,15 +78,9 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         endpoint: str | None = None,
         prefix: str = "fleet",
     ) -> None:
-        if model not in MODELS:
-            raise ValueError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
-        if not 1 <= beams <= 360 or 360 % beams:
-            raise ValueError(f"beams must divide 360 (e.g. 24, 36, 360), got {beams}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
-        self.model = MODELS[model]
+        self.model = check_settings(model, beams, max_steps)
         self.beams = beams
         self.max_steps = max_steps
         self.render_mode = render_mode

@@ -30,6 +30,7 @@ from learn.task import (
     F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
+    check_settings,
     collided,
     command,
     footprint_ranges,
@@ -40,7 +41,6 @@ from learn.task import (
 )
 from protocol.control import SpawnRequest
 from simd.core.mapworld import load_world_or_map
-from simd.core.models import MODELS
 from simd.core.sim import SimConfig, Simulation
 
 TICKS_A_STEP = 6
@@ -64,15 +64,9 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
     ) -> None:
         if not 1 <= robots <= 64:
             raise ValueError(f"robots must be in 1..64, got {robots}")
-        if model not in MODELS:
-            raise ValueError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
-        if not 1 <= beams <= 360 or 360 % beams:
-            raise ValueError(f"beams must divide 360 (e.g. 24, 36, 360), got {beams}")
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be 'rgb_array' or None, got {render_mode!r}")
-        self.model = MODELS[model]
+        self.model = check_settings(model, beams, max_steps)
         self.beams = beams
         self.discrete = discrete
         self.max_steps = max_steps

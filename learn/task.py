@@ -26,6 +26,19 @@ DISCRETE_TURNS = (-1.5, -0.75, 0.0, 0.75, 1.5)
 DISCRETE_SPEED = 0.15
 
 
+def check_settings(model: str, beams: int, max_steps: int) -> RobotModel:
+    """The model of this name, once the settings both environments share are sound (else ValueError)."""
+    from simd.core.models import MODELS
+
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {', '.join(MODELS)}, got {model!r}")
+    if not 1 <= beams <= 360 or 360 % beams:
+        raise ValueError(f"beams must divide 360 (e.g. 24, 36, 360), got {beams}")
+    if max_steps < 1:
+        raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+    return MODELS[model]
+
+
 def observation_bounds(model: RobotModel, beams: int, diagonal: float) -> tuple[F32, F32]:
     """The observation box: sectors 0..1, goal distance 0..diagonal, bearing ±π, the velocities."""
     vmax, wmax = model.max_linear_velocity, model.max_angular_velocity
