@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -33,9 +33,10 @@ from clients.mapping.explore import Explorer
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
 from protocol import FleetError
+from protocol.control import StepReply
 from protocol.errors import ErrorCode
 from protocol.mapfile import MapFileError, OccupancyMap, pixels_of, write_map
-from protocol.messages import FleetOdometry, FleetScans
+from protocol.messages import FleetOdometry, FleetScans, LaserScan
 from protocol.zenoh_config import options_from_args
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_DAEMON = 0, 1, 2, 3
@@ -160,6 +161,8 @@ class Drive:
     stop: threading.Event
     next_plan: float = 0.0
     sim_time: float = 0.0
+    #: per robot, the stamp of the last scan fused from a step reply
+    fused: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     def _replan(self) -> bool:
         """New goals on the current map; False when no robot can reach a frontier."""
@@ -193,29 +196,62 @@ class Drive:
         before deciding the next commands: deterministic, and as fast as the daemon runs."""
         t0 = time.monotonic()
         steps = 0
-        reply = self.client.step(1)
+        reply = self.client.step(1, observe=self.names)
         while not self.stop.is_set() and self.sim_time < limit:
             if duration and time.monotonic() - t0 > duration:
                 break
-            self._catch_up(inbox, (reply.clock.sec, reply.clock.nanosec))
+            self._catch_up(inbox, reply)
             self.sim_time = reply.clock.to_seconds()
             if steps % PLAN_EVERY_STEPS == 0 and not self._replan():
                 break
-            reply = self.client.step(TICKS_A_STEP, cmd_vel=self._commands())
+            reply = self.client.step(TICKS_A_STEP, cmd_vel=self._commands(), observe=self.names)
             steps += 1
             if steps % 50 == 0:
                 print(progress(time.monotonic() - t0), file=sys.stderr, flush=True)
-        self._catch_up(inbox, (reply.clock.sec, reply.clock.nanosec))
+        self._catch_up(inbox, reply)
 
-    def _catch_up(self, inbox: queue.Queue[FleetOdometry | FleetScans], stamp: tuple[int, int]) -> None:
-        """Fuse what the daemon sent up to ``stamp`` (its fleet topics arrive beside the reply)."""
+    def _catch_up(self, inbox: queue.Queue[FleetOdometry | FleetScans], reply: StepReply) -> None:
+        """Take the odometry the daemon sent up to the step's end (its fleet topics arrive beside
+        the reply), then fuse the scans the reply carries, oldest first: the same order every
+        run, so lockstep mapping repeats exactly (the topic's scans may arrive after the next
+        plan, and are not used here)."""
+        stamp = (reply.clock.sec, reply.clock.nanosec)
         deadline = time.monotonic() + 5.0
         while self.mapper.latest_stamp < stamp and time.monotonic() < deadline:
             try:
-                self.mapper.take(inbox.get(timeout=0.5))
+                self._take_odometry(inbox.get(timeout=0.5))
             except queue.Empty:
                 pass
-        drain(inbox, self.mapper.take)
+        drain(inbox, self._take_odometry)
+        for scans in self._new_scans(reply):
+            self.mapper.on_scans(scans)
+
+    def _take_odometry(self, msg: FleetOdometry | FleetScans) -> None:
+        if isinstance(msg, FleetOdometry):
+            self.mapper.on_odometry(msg)
+
+    def _new_scans(self, reply: StepReply) -> list[FleetScans]:
+        """The reply's scans not fused yet, one FleetScans per tick (a step of three ticks holds
+        at most one scan of each robot, which scans every six)."""
+        by_tick: dict[tuple[int, int], list[tuple[str, LaserScan]]] = {}
+        for ns, seen in reply.observations.items():
+            scan = seen.scan
+            if scan is None:
+                continue
+            stamp = (scan.header.stamp.sec, scan.header.stamp.nanosec)
+            if self.fused.get(ns) == stamp:
+                continue
+            self.fused[ns] = stamp
+            by_tick.setdefault(stamp, []).append((ns, scan))
+        out = []
+        for _, group in sorted(by_tick.items()):
+            first = group[0][1]
+            out.append(FleetScans(stamp=first.header.stamp, namespaces=[ns for ns, _ in group],
+                                  beams=len(first.ranges) // 4, angle_min=first.angle_min,
+                                  angle_max=first.angle_max, angle_increment=first.angle_increment,
+                                  range_min=first.range_min, range_max=first.range_max,
+                                  ranges=b"".join(s.ranges for _, s in group)))  # fmt: skip
+        return out
 
 
 def progress_line(mapper: Mapper, elapsed: float) -> str:

@@ -173,6 +173,28 @@ def test_one_robot_explores_turtlebot3_world_on_its_own(daemon_factory: Callable
     assert quality["precision"] >= 0.95 and quality["recall"] >= 0.95 and quality["coverage"] >= 0.95, quality
 
 
+def test_lockstep_exploration_repeats_exactly(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    """Two runs, each on a fresh lockstep daemon with three robots in turtlebot3_house, write the
+    same map to the byte: fleet-map fuses each step's scans in tick order whatever the network
+    timing."""
+    maps = []
+    for run in range(2):
+        d = daemon_factory("--lockstep", "--world", "turtlebot3_house")
+        c = d.client()
+        for i, (x, y) in enumerate([(-2.0, -0.5), (6.0, 1.0), (1.0, -3.0)]):
+            c.spawn(f"tb3_{i}", x, y)
+        stem = tmp_path / f"run{run}"
+        p = subprocess.run(
+            [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
+             "--explore-limit", "40"],
+            capture_output=True, text=True, cwd=ROOT, timeout=240,
+        )  # fmt: skip
+        assert p.returncode == 0, p.stderr
+        maps.append(stem.with_name(f"run{run}.pgm").read_bytes())
+        d.stop()
+    assert maps[0] == maps[1]
+
+
 # -- scan matching and drifting odometry --------------------------------------------------------
 
 
