@@ -36,7 +36,7 @@ from bench.measure import proc_status_kb
 from bench.numbers import median
 from bench.processes import PREEXEC, ROOT, start_daemon, stop_process
 from bench.subscriber import Subscriber
-from bench.wire import PREFIX
+from bench.wire import PREFIX, zenoh_config
 
 #: hostile bodies go to these (a pause or reset that happened to decode would stop the soak's
 #: fleet: the fuzz test in tests/daemon covers those keys)
@@ -47,11 +47,7 @@ def _session(endpoint: str) -> Any:
     """A plain zenoh client session, as any zenoh tool would open."""
     import zenoh
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"client"')
-    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    return zenoh.open(conf)
+    return zenoh.open(zenoh_config(endpoint, 30.0))
 
 
 def hostile_body(rng: random.Random) -> bytes:

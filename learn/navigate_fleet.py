@@ -110,8 +110,9 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             raise RuntimeError(f"no room for {len(self.possible_agents)} robots in {self.sim.world.name!r}")
         self.agents = list(self.possible_agents)
         self.steps = 0
-        self._distance = {a: self._goal_distance(a) for a in self.agents}
-        return {a: self._observe(a) for a in self.agents}, {a: self._info(a) for a in self.agents}
+        seen = {a: self._look(a) for a in self.agents}
+        self._distance = {a: d for a, (_, d, _) in seen.items()}
+        return {a: o for a, (o, _, _) in seen.items()}, {a: i for a, (_, _, i) in seen.items()}
 
     def _place(self) -> bool:
         """Every robot at a free start with its goal; False if one starts in contact."""
@@ -138,17 +139,16 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self.steps += 1
         obs, rewards, terms, truncs, infos = {}, {}, {}, {}, {}
         for a in self.agents:
-            d = self._goal_distance(a)
+            obs[a], d, info = self._look(a)
             reward = PROGRESS_REWARD * (self._distance[a] - d)
             self._distance[a] = d
             arrived = d < GOAL_RADIUS
             crashed = collided(self._scans[a], self._footprint)
             reward += ARRIVAL_REWARD if arrived else COLLISION_REWARD if crashed else 0.0
-            obs[a] = self._observe(a)
             rewards[a] = float(reward)
             terms[a] = arrived or crashed
             truncs[a] = not terms[a] and self.steps >= self.max_steps
-            infos[a] = self._info(a) | {"arrived": arrived, "collided": crashed}
+            infos[a] = info | {"arrived": arrived, "collided": crashed}
         for a in list(self.agents):
             if terms[a] or truncs[a]:  # it leaves the episode, and the world
                 self.sim.delete(a)
@@ -172,15 +172,11 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             for i, ns in enumerate(snap.scan_namespaces):
                 self._scans[ns] = np.array(snap.scans[i])
 
-    def _observe(self, agent: str) -> F32:
+    def _look(self, agent: str) -> tuple[F32, float, dict[str, Any]]:
+        """The agent's observation, distance to its goal and info, from one look at its state."""
         pose, velocity = state_of(self.sim, agent)
-        return observe(pose, velocity, self.goals[agent], self._scans[agent], self.beams,
-                       self.sim.config.lidar.range_max, self._low, self._high)  # fmt: skip
-
-    def _goal_distance(self, agent: str) -> float:
-        (x, y, _), _ = state_of(self.sim, agent)
-        return math.hypot(self.goals[agent][0] - x, self.goals[agent][1] - y)
-
-    def _info(self, agent: str) -> dict[str, Any]:
-        s = self.sim.state(self.sim.find(agent))  # type: ignore[arg-type]
-        return {"pose": (s.x, s.y, s.yaw), "goal": self.goals[agent], "distance": self._distance[agent]}
+        goal = self.goals[agent]
+        d = math.hypot(goal[0] - pose[0], goal[1] - pose[1])
+        obs = observe(pose, velocity, goal, self._scans[agent], self.beams, self.sim.config.lidar.range_max,
+                      self._low, self._high)  # fmt: skip
+        return obs, d, {"pose": pose, "goal": goal, "distance": d}

@@ -67,10 +67,8 @@ class LogOddsGrid:
         self.seen = np.zeros((self.height, self.width), dtype=bool)
         self.scans = 0
         # where in its cell each occupied cell's obstacle is: the sum and count of the end points
-        # that fell in it (scan matching aligns scans to these, finer than the cells)
-        self.hit_x = np.zeros((self.height, self.width), dtype=np.float64)
-        self.hit_y = np.zeros((self.height, self.width), dtype=np.float64)
-        self.hit_count = np.zeros((self.height, self.width), dtype=np.float64)
+        # that fell in it, kept only for scan matching (keep_points), which aligns scans to them
+        self.hit_x = self.hit_y = self.hit_count = np.zeros((0, 0), dtype=np.float64)
         self._free = np.zeros((self.height, self.width), dtype=bool)  # scratch masks of one scan
         self._hit = np.zeros((self.height, self.width), dtype=bool)
 
@@ -109,7 +107,8 @@ class LogOddsGrid:
         free = self._mark(fx, fy, self._free[window], r0, c0)
         ex, ey = x + dx[hit_beams] * reach[hit_beams], y + dy[hit_beams] * reach[hit_beams]
         hits = self._mark(ex, ey, self._hit[window], r0, c0)
-        self._remember(ex, ey)
+        if self.hit_count.size:
+            self._remember(ex, ey)
         # each cell once per scan, and a cell a beam ends in is a hit whatever crossed it
         free &= ~hits
         logodds = self.logodds[window]
@@ -121,6 +120,13 @@ class LogOddsGrid:
         free[:] = False
         hits[:] = False
         self.scans += 1
+
+    def keep_points(self) -> None:
+        """From now on, remember where in its cell each scan end point fell (scan matching needs it)."""
+        if not self.hit_count.size:
+            self.hit_x = np.zeros((self.height, self.width), dtype=np.float64)
+            self.hit_y = np.zeros((self.height, self.width), dtype=np.float64)
+            self.hit_count = np.zeros((self.height, self.width), dtype=np.float64)
 
     def _remember(self, ex: F64, ey: F64) -> None:
         """Add end points to their cells' sums."""

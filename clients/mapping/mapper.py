@@ -40,6 +40,10 @@ class Mapper:
     #: per robot, the map frame's pose of its odometry frame (x, y, yaw): what scan matching learned
     corrections: dict[str, tuple[float, float, float]] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        if self.matching:
+            self.grid.keep_points()
+
     def corrected(self, ns: str, pose: tuple[float, float, float]) -> tuple[float, float, float]:
         """An odometry pose in the map's frame."""
         cx, cy, cth = self.corrections.get(ns, (0.0, 0.0, 0.0))

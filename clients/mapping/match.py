@@ -199,6 +199,8 @@ def match(
     """The robot pose near ``pose`` (x, y, yaw of base_footprint) where the scan, taken by a lidar
     ``offset`` ahead of the robot's origin, fits ``grid`` best; ``pose`` itself when the map
     cannot tell."""
+    if not grid.hit_count.size:
+        raise ValueError("scan matching needs a grid that keeps its points: call grid.keep_points() first")
     if grid.scans < MIN_SCANS:
         return pose
     r = np.asarray(ranges, dtype=np.float64)

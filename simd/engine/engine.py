@@ -194,7 +194,7 @@ class Engine:
             self._next_save = next_tick  # at once: a restored or new fleet is on disk from the start
         try:
             while not self.stop_event.is_set():
-                if self._wall() >= self._next_save:
+                if self._saver is not None and self._wall() >= self._next_save:
                     self._save()
                 if self._steps:
                     self._run_slice()

@@ -154,17 +154,23 @@ def test_robots_share_the_frontiers() -> None:
     assert v >= 0 and abs(w) <= ex.max_angular
 
 
+def _explore(d: Daemon, stem: Path, limit: float, *extra: str) -> subprocess.CompletedProcess[str]:
+    """``fleet-map --explore`` against ``d`` until done or ``limit`` sim seconds; it must succeed."""
+    p = subprocess.run(
+        [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
+         "--explore-limit", f"{limit:g}", *extra],
+        capture_output=True, text=True, cwd=ROOT, timeout=240,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    return p
+
+
 def test_one_robot_explores_turtlebot3_world_on_its_own(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
     d = daemon_factory("--lockstep", "--no-noise")
     c = d.client()
     c.spawn("tb3_0", -2.0, -0.5)
     stem = tmp_path / "explored"
-    p = subprocess.run(
-        [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
-         "--explore-limit", "240"],
-        capture_output=True, text=True, cwd=ROOT, timeout=240,
-    )  # fmt: skip
-    assert p.returncode == 0, p.stderr
+    p = _explore(d, stem, 240)
     assert "explored over sim time" in p.stdout
     clock = c.clock()
     assert clock.tick * clock.dt < 240  # it finished: no reachable frontier left before the limit
@@ -184,12 +190,7 @@ def test_lockstep_exploration_repeats_exactly(daemon_factory: Callable[..., Daem
         for i, (x, y) in enumerate([(-2.0, -0.5), (6.0, 1.0), (1.0, -3.0)]):
             c.spawn(f"tb3_{i}", x, y)
         stem = tmp_path / f"run{run}"
-        p = subprocess.run(
-            [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
-             "--explore-limit", "40"],
-            capture_output=True, text=True, cwd=ROOT, timeout=240,
-        )  # fmt: skip
-        assert p.returncode == 0, p.stderr
+        _explore(d, stem, 40)
         maps.append(stem.with_name(f"run{run}.pgm").read_bytes())
         d.stop()
     assert maps[0] == maps[1]
@@ -206,6 +207,7 @@ def test_scan_matching_recovers_a_known_drift() -> None:
 
     world = load_world("turtlebot3_world")
     grid = LogOddsGrid(world.bounds, 0.05)
+    grid.keep_points()
     poses = [(-2.0, -0.5), (0.5, -2.0), (2.0, 0.5), (-0.5, 2.0)]
     scans = []
     for x, y in poses:
@@ -236,6 +238,7 @@ def test_scan_matching_does_not_slide_along_a_long_wall() -> None:
     from clients.mapping.match import match
 
     grid = LogOddsGrid((-4.0, 4.0, -2.0, 2.0), 0.05)
+    grid.keep_points()
     for i in range(12):
         x = -1.5 + 0.25 * i
         grid.integrate(x, 0.0, 0.0, _scan_of_a_long_wall(x, 0.0, 0.0, 1.0), LDS)
@@ -255,12 +258,7 @@ def test_exploring_with_drifting_odometry(
     c = d.client()
     c.spawn("tb3_0", -2.0, -0.5)
     stem = tmp_path / "drift"
-    p = subprocess.run(
-        [sys.executable, "-m", "clients.mapping.cli", "-e", d.endpoint, "-o", str(stem), "--explore",
-         "--explore-limit", "120", *(["--match"] if matching else [])],
-        capture_output=True, text=True, cwd=ROOT, timeout=240,
-    )  # fmt: skip
-    assert p.returncode == 0, p.stderr
+    _explore(d, stem, 120, *(["--match"] if matching else []))
     quality = score(read_map(stem.with_name("drift.yaml")), c.world(), [(-2.0, -0.5)])
     if matching:
         assert quality["precision"] >= 0.95 and quality["recall"] >= 0.95, quality
