@@ -10,6 +10,10 @@ Importing this package registers them with Gymnasium::
 They run the simulation in the calling process: no daemon, no network.
 """
 
-from gymnasium.envs.registration import register
+try:
+    from gymnasium.envs.registration import register
+except ImportError as e:  # installed without the extra: say how to get it
+    raise ImportError("fleetsim's learning environments need gymnasium and pettingzoo: "
+                      "pip install -e '.[learn]' (./test installs them)") from e  # fmt: skip
 
 register(id="fleetsim/Navigate-v0", entry_point="learn.navigate:NavigateEnv")
