@@ -21,15 +21,20 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 import msgspec
+import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from protocol.codec import decode, encode
 from protocol.control import (
     Clock,
     DeleteRequest,
+    PackedCommands,
+    PackedObservations,
     ResetRequest,
     RobotList,
     RobotRecord,
@@ -201,6 +206,9 @@ class FleetClient:
         timeout: float | None = None,
         *,
         observe: Iterable[str] = (),
+        publish: bool = True,
+        packed: bool = False,
+        commands: tuple[list[str], npt.ArrayLike] | None = None,
     ) -> StepReply:
         """Advance ``ticks`` ticks of a paused or lockstep daemon and return once they ran.
 
@@ -208,9 +216,23 @@ class FleetClient:
         ``observe`` names robots whose odometry and latest scan come back in the reply
         (``reply.observations[name].odom`` / ``.scan``), with no further round trip. The reply
         is the clock after the step, with ``ticks_run`` (fewer than asked, and ``cancelled``,
-        when somebody paused, resumed or reset the daemon meanwhile)."""
+        when somebody paused, resumed or reset the daemon meanwhile).
+
+        For many robots (a learning loop): ``publish=False`` steps without publishing any
+        topic, and ``packed=True`` returns the observations as arrays in ``reply.packed``
+        (read them with :func:`observed_arrays`); ``commands=(namespaces, values)`` with
+        ``values`` of shape (n, 2) (linear, angular) replaces ``cmd_vel`` by arrays."""
         cmds = {ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()}
-        req = StepRequest(ticks=ticks, cmd_vel=cmds, observe=list(observe))
+        arrays = None
+        if commands is not None:
+            names, values = commands
+            twist = np.ascontiguousarray(values, dtype="<f8")
+            if twist.shape != (len(names), 2):
+                raise ValueError(f"commands: values must have shape ({len(names)}, 2), got {twist.shape}")
+            arrays = PackedCommands(names=list(names), twist=twist.tobytes())
+        req = StepRequest(
+            ticks=ticks, cmd_vel=cmds, commands=arrays, observe=list(observe), publish=publish, packed=packed
+        )
         return self._query(self.keys.step, req, StepReply, timeout)
 
     # -- motion ---------------------------------------------------------------------------
@@ -417,6 +439,29 @@ class FleetClient:
     def latest_scan(self, namespace: str) -> LaserScan | None:
         """The daemon's most recent scan of a robot (None before its first scan)."""
         return self._latest("scan", namespace, LaserScan)
+
+
+@dataclass(frozen=True)
+class ObservedFleet:
+    """A packed step's observations as numpy arrays, row k for ``names[k]``: ``odom`` (n, 6)
+    x, y, yaw, linear x, linear y, angular z; ``scan_time`` (n,) and ``ranges`` (n, samples)
+    the latest scans, NaN before a robot's first."""
+
+    names: list[str]
+    odom: npt.NDArray[np.float64]
+    scan_time: npt.NDArray[np.float64]
+    ranges: npt.NDArray[np.float32]
+
+
+def observed_arrays(packed: PackedObservations) -> ObservedFleet:
+    """Read ``StepReply.packed`` (views on the reply's bytes: no copy, read-only)."""
+    n = len(packed.names)
+    return ObservedFleet(
+        names=packed.names,
+        odom=np.frombuffer(packed.odom, dtype="<f8").reshape(n, 6),
+        scan_time=np.frombuffer(packed.scan_time, dtype="<f8"),
+        ranges=np.frombuffer(packed.ranges, dtype="<f4").reshape(n, packed.samples),
+    )
 
 
 def _short(e: BaseException) -> str:

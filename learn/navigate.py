@@ -23,7 +23,8 @@ takes milliseconds instead of a Gazebo restart.
   generator; ``reset(seed=s)`` reseeds it and the lidar noise, so a seed replays an episode
   exactly. ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes either.
 - **Remote**: with ``endpoint=`` the same episodes run on a simd in lockstep over Zenoh (one
-  ``sim/step`` a step, the observation in its reply), to be watched in the viewer or ROS tools.
+  ``sim/step`` a step, the observation in its reply), to be watched in the viewer or ROS tools;
+  ``publish=False`` steps it without publishing any topic, when nobody watches.
 """
 
 from __future__ import annotations
@@ -35,6 +36,7 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
+from learn.remote import connect
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
@@ -77,6 +79,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         render_mode: str | None = None,
         endpoint: str | None = None,
         prefix: str = "fleet",
+        publish: bool = True,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']}, got {render_mode!r}")
@@ -88,7 +91,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         spec = self.sim.config.lidar
         self.range_max = spec.range_max
         self._footprint = footprint_ranges(self.model, spec.samples)
-        self.remote = _Remote(endpoint, prefix, self.sim.world.name) if endpoint is not None else None
+        self.remote = _Remote(endpoint, prefix, self.sim.world.name, publish) if endpoint is not None else None
         self._state: tuple[tuple[float, float, float], tuple[float, float]] = ((0.0, 0.0, 0.0), (0.0, 0.0))
         x0, x1, y0, y1 = self.sim.world.bounds
         diagonal = math.hypot(x1 - x0, y1 - y0)
@@ -106,6 +109,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self._distance = 0.0
         self._scan = np.zeros(spec.samples, dtype=np.float32)
         self._window: Any = None
+        self._in_episode = False  # the robot is in the world
 
     # -- the gymnasium API ------------------------------------------------------------------
 
@@ -162,7 +166,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
     def render(self) -> F32 | None:
         from learn.picture import top_down
 
-        image = top_down(self.sim, self.goal, ROBOT, self._scan)
+        here = [(ROBOT, self.model, self._pose())] if self._in_episode else []
+        image = top_down(self.sim.world, here, self.goal, ROBOT, self._scan)
         if self.render_mode == "rgb_array":
             return image  # type: ignore[return-value]
         if self.render_mode == "human":
@@ -193,12 +198,14 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             self.remote.client.spawn(req.name, req.x, req.y, req.yaw, model=req.model)
         else:
             self.sim.spawn(req)
+        self._in_episode = True
 
     def _delete(self) -> None:
         if self.remote is not None:
             self.remote.client.delete(ROBOT)
         else:
             self.sim.delete(ROBOT)
+        self._in_episode = False
 
     def _advance(self, v: float, w: float) -> None:
         """Hold (v, w) for one lidar period; keep the robot's scan, pose and velocity of it."""
@@ -259,26 +266,11 @@ def _chosen(options: dict[str, Any] | None) -> tuple[tuple[float, float, float] 
 
 
 class _Remote:
-    """A running simd in lockstep, stepped over Zenoh: the same episodes as in process, where the
-    training can be watched in fleet-view or ROS tools. The env owns the daemon's clock: a reset
-    resets the daemon's world (every robot to its spawn pose, the noise reseeded)."""
+    """The robot on a running simd (learn/remote.py), stepped with its observation in the reply."""
 
-    def __init__(self, endpoint: str, prefix: str, world: str) -> None:
-        from clients.api import FleetClient
-
-        self.client = FleetClient(endpoint, prefix=prefix, timeout=10.0)
-        try:
-            clock = self.client.clock()
-            there = self.client.world().name
-        except FleetError as e:
-            self.client.close()
-            raise ValueError(f"no fleetsim daemon at {endpoint}: {e.message}") from None
-        if not clock.paused:
-            self.client.close()
-            raise ValueError(f"the daemon at {endpoint} must run in lockstep (simd --lockstep) or be paused")
-        if there != world:
-            self.client.close()
-            raise ValueError(f"the daemon at {endpoint} runs world {there!r}, this env {world!r}: make them the same")
+    def __init__(self, endpoint: str, prefix: str, world: str, publish: bool) -> None:
+        self.client = connect(endpoint, prefix, world)
+        self.publish = publish
 
     def reset(self, noise_seed: int) -> None:
         self.client.reset(noise_seed)
@@ -286,7 +278,7 @@ class _Remote:
             self.client.delete(ROBOT)
 
     def step(self, v: float, w: float) -> tuple[F32, tuple[tuple[float, float, float], tuple[float, float]]]:
-        reply = self.client.step(TICKS_A_STEP, cmd_vel={ROBOT: (v, w)}, observe=[ROBOT])
+        reply = self.client.step(TICKS_A_STEP, cmd_vel={ROBOT: (v, w)}, observe=[ROBOT], publish=self.publish)
         seen = reply.observations[ROBOT]
         assert seen.scan is not None  # a lidar period always holds one scan
         scan = np.frombuffer(seen.scan.ranges, dtype="<f4").astype(np.float32)

@@ -4,12 +4,13 @@ every robot's footprint, the agents' goals and their latest scans."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.sim import Simulation
+from simd.core.models import RobotModel
+from simd.core.worldfile import WorldGeometry
 
 SIZE = 480  # pixels on the world's longer side
 BACKGROUND = (246, 246, 242)
@@ -20,13 +21,16 @@ SCAN = (204, 0, 0)
 
 
 def top_down(
-    sim: Simulation, goal: tuple[float, float] | Mapping[str, tuple[float, float]], agent: str | None = None,
+    world: WorldGeometry, robots: Iterable[tuple[str, RobotModel, tuple[float, float, float]]],
+    goal: tuple[float, float] | Mapping[str, tuple[float, float]], agent: str | None = None,
     scan: npt.NDArray[np.float32] | None = None,
 ) -> npt.NDArray[np.uint8]:  # fmt: skip
-    """An (H, W, 3) uint8 image. ``goal`` is one point, or a point per agent."""
+    """An (H, W, 3) uint8 image of ``world`` with ``robots`` (name, model, pose) on it, and the
+    scan of ``agent``. ``goal`` is one point, or a point per agent. The poses are the caller's
+    (the env's latest), so that a remote episode draws as an in-process one."""
     from PIL import Image, ImageDraw
 
-    x0, x1, y0, y1 = sim.world.bounds
+    x0, x1, y0, y1 = world.bounds
     scale = SIZE / max(x1 - x0, y1 - y0)
     w, h = max(1, round((x1 - x0) * scale)), max(1, round((y1 - y0) * scale))
 
@@ -35,23 +39,23 @@ def top_down(
 
     image = Image.new("RGB", (w, h), BACKGROUND)
     draw = ImageDraw.Draw(image)
-    for poly in sim.world.polygons:
+    for poly in world.polygons:
         draw.polygon([px(float(x), float(y)) for x, y in poly], fill=WALL)
-    for cx, cy, r in np.asarray(sim.world.circles).reshape(-1, 3):
+    for cx, cy, r in np.asarray(world.circles).reshape(-1, 3):
         (ax, ay), (bx, by) = px(cx - r, cy + r), px(cx + r, cy - r)
         draw.ellipse([ax, ay, bx, by], fill=WALL)
     goals = goal if isinstance(goal, Mapping) else {agent or "": goal}
     for gx, gy in goals.values():
         (ax, ay), (bx, by) = px(gx - 0.1, gy + 0.1), px(gx + 0.1, gy - 0.1)
         draw.ellipse([ax, ay, bx, by], outline=GOAL, width=3)
-    for s in sim.states():
-        c, sn = math.cos(s.yaw), math.sin(s.yaw)
-        outline = [px(s.x + ox * c - oy * sn, s.y + ox * sn + oy * c) for ox, oy in s.model.outline]
+    for name, model, (x, y, yaw) in robots:
+        c, sn = math.cos(yaw), math.sin(yaw)
+        outline = [px(x + ox * c - oy * sn, y + ox * sn + oy * c) for ox, oy in model.outline]
         draw.polygon(outline, fill=ROBOT)
-        if s.name == agent and scan is not None:
-            lx, ly = s.model.lidar_offset
-            sx, sy = s.x + lx * c - ly * sn, s.y + lx * sn + ly * c
-            angles = s.yaw + np.arange(len(scan)) * (2 * math.pi / len(scan))
+        if name == agent and scan is not None:
+            lx, ly = model.lidar_offset
+            sx, sy = x + lx * c - ly * sn, y + lx * sn + ly * c
+            angles = yaw + np.arange(len(scan)) * (2 * math.pi / len(scan))
             ok = np.isfinite(scan)
             for a, r in zip(angles[ok], scan[ok], strict=True):
                 qx, qy = px(sx + r * math.cos(a), sy + r * math.sin(a))

@@ -39,6 +39,14 @@ class DeleteRequest(msgspec.Struct, kw_only=True):
 MAX_STEP_TICKS = 1_000_000
 
 
+class PackedCommands(msgspec.Struct, kw_only=True):
+    """Commands for many robots at once (``StepRequest.commands``): ``names`` are namespaces,
+    ``twist`` float64 little-endian, a row of (linear.x, angular.z) for each, in order."""
+
+    names: list[str]
+    twist: bytes
+
+
 class StepRequest(msgspec.Struct, kw_only=True):
     """``P/sim/step``: advance ``ticks`` fixed steps (1/30 s each) while paused or in lockstep.
 
@@ -46,11 +54,20 @@ class StepRequest(msgspec.Struct, kw_only=True):
     watchdog never cuts them short), so a lockstep client's command and step cannot race
     each other on different zenoh threads. ``observe`` names robots whose odometry and latest
     scan come back in the reply, saving a round trip per robot.
+
+    Learning loops step many robots and read them all, and nothing else: ``publish=False``
+    runs the step's ticks without encoding or publishing any topic (odometry, scans, /tf,
+    clock), and ``packed=True`` returns the observations as a few arrays
+    (:class:`PackedObservations`) instead of one message per robot. The world advances the
+    same either way. ``commands`` gives the step's commands as arrays instead of ``cmd_vel``.
     """
 
     ticks: int = 1
     cmd_vel: dict[str, Twist] = msgspec.field(default_factory=dict)
+    commands: PackedCommands | None = None
     observe: list[str] = msgspec.field(default_factory=list)
+    publish: bool = True
+    packed: bool = False
 
 
 class ResetRequest(msgspec.Struct, kw_only=True):
@@ -210,6 +227,22 @@ class Observation(msgspec.Struct, kw_only=True):
     scan: LaserScan | None = None
 
 
+class PackedObservations(msgspec.Struct, kw_only=True):
+    """The observed robots of a ``packed`` step, row by row in the order asked for, as
+    little-endian arrays (raw bytes in msgpack, base64 in JSON). ``odom``: float64 (n, 6), each
+    row x, y, yaw, linear.x, linear.y, angular.z of the robot's odometry after the step (what
+    its odom topic says for that tick); ``scan_time``: float64 (n,), the sim time of each
+    robot's latest scan, NaN before its first; ``ranges``: float32 (n, samples), those scans
+    (a ``LaserScan.ranges`` each; NaN rows before the first). A robot deleted during the step
+    is left out of ``names`` and of every array."""
+
+    names: list[str]
+    samples: int
+    odom: bytes
+    scan_time: bytes
+    ranges: bytes
+
+
 class StepReply(Clock, kw_only=True):
     """The reply of ``P/sim/step``: the clock after the step, how many ticks ran (fewer than
     asked when a pause cancelled the rest), and the observations asked for. A client that
@@ -218,3 +251,5 @@ class StepReply(Clock, kw_only=True):
     ticks_run: int = 0
     cancelled: bool = False
     observations: dict[str, Observation] = msgspec.field(default_factory=dict)
+    #: the observations of a ``packed`` step (``observations`` is empty then)
+    packed: PackedObservations | None = None

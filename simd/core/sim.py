@@ -263,11 +263,16 @@ class Simulation:
                 vs.append(v)
                 ws.append(w)
         if rows:
-            idx = np.asarray(rows)
-            t.target_v[idx] = vs
-            t.target_w[idx] = ws
-            t.last_cmd[idx] = self.tick
+            self.command_rows(np.asarray(rows), np.asarray(vs), np.asarray(ws))
         return len(rows)
+
+    def command_rows(self, rows: I64, v: F64, w: F64) -> None:
+        """Command the robots of table ``rows`` at once (rows from ``robots.row_of``, valid
+        while the table's ``namespaces`` list is the same object); refreshes their watchdogs."""
+        t = self.robots
+        t.target_v[rows] = v
+        t.target_w[rows] = w
+        t.last_cmd[rows] = self.tick
 
     def reset(self, seed: int | None = None) -> None:
         """Time to zero, robots to their spawn poses at rest, noise reseeded."""

@@ -20,6 +20,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+import numpy.typing as npt
+
 from protocol.control import (
     MAX_STEP_TICKS,
     Clock,
@@ -42,6 +45,7 @@ from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
 from simd.engine.ports import (
     Adapter,
     Deleted,
+    ObservedArrays,
     Reply,
     Result,
     RobotList,
@@ -71,12 +75,32 @@ class _Call:
 
 @dataclass
 class _StepJob:
-    """A step request being run, slice by slice."""
+    """A step request being run, slice by slice. Its commands (``names[k]`` at ``v[k]``,
+    ``w[k]``) are applied at every tick, as table rows while the table's rows stay put (a
+    spawn or delete between two slices makes the engine look the namespaces up again)."""
 
     request: StepRequest
     reply: Reply
-    commands: dict[str, tuple[float, float]]
+    names: list[str]
+    v: npt.NDArray[np.float64]
+    w: npt.NDArray[np.float64]
     ran: int = 0
+    rows_of: list[str] | None = None  # the table's namespaces list that ``rows`` belong to
+    rows: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    here: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))  # names still in the world
+
+    def apply(self, sim: Simulation) -> None:
+        """Command this step's robots for the coming tick."""
+        t = sim.robots
+        if self.rows_of is not t.namespaces:
+            found = [t.row_of(ns) for ns in self.names]
+            self.here = np.array([i is not None for i in found], dtype=bool)
+            self.rows = np.array([i for i in found if i is not None], dtype=np.int64)
+            self.rows_of = t.namespaces
+        if len(self.rows):
+            all_here = len(self.rows) == len(self.names)
+            v, w = (self.v, self.w) if all_here else (self.v[self.here], self.w[self.here])
+            sim.command_rows(self.rows, v, w)
 
 
 @dataclass
@@ -125,6 +149,7 @@ class Engine:
         self._steps: collections.deque[_StepJob] = collections.deque()
         self._pending_commands: dict[str, tuple[float, float]] = {}
         self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}  # namespace -> (tick, row) of its scan
+        self._last_snap: TickSnapshot | None = None
         self._rtf = RtfMeter()
         self._saver = saver  # --state: the fleet written as it runs
         self._next_save = math.inf
@@ -252,21 +277,24 @@ class Engine:
             cmds.update(a.take_commands())
         return cmds
 
-    def tick(self) -> TickSnapshot:
-        """Apply the newest commands, advance one tick, hand the snapshot to every adapter."""
+    def tick(self, publish: bool = True) -> TickSnapshot:
+        """Apply the newest commands, advance one tick, hand the snapshot to every adapter
+        (unless a step asked for no publishing: then no adapter hears of the tick)."""
         sim = self.sim
         sim.command_many(self._gather_commands())
         self._pending_commands = {}
         if self._steps:  # a step's own commands hold for all of its ticks
-            sim.command_many(self._steps[0].commands)
+            self._steps[0].apply(sim)
         snap = sim.step()
         for i, ns in enumerate(snap.scan_namespaces):
             self._latest_scan[ns] = (snap, i)
-        for a in self.adapters:
-            a.on_tick(snap)
+        self._last_snap = snap
         self._rtf.record(self._wall(), snap.time)
-        if snap.tick % CLOCK_EVERY == 0:
-            self._announce_clock()
+        if publish:
+            for a in self.adapters:
+                a.on_tick(snap)
+            if snap.tick % CLOCK_EVERY == 0:
+                self._announce_clock()
         return snap
 
     def _announce_clock(self) -> None:
@@ -359,26 +387,50 @@ class Engine:
             )
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
             raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
-        commands: dict[str, tuple[float, float]] = {}
-        for ns, tw in req.cmd_vel.items():
-            v, w = float(tw.linear.x), float(tw.angular.z)
-            if not (math.isfinite(v) and math.isfinite(w)):
-                raise FleetError(ErrorCode.NON_FINITE, f"cmd_vel for {ns!r} is not finite", "cmd_vel")
-            if self.sim.robots.row_of(ns) is None:
-                raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", "cmd_vel")
-            commands[ns] = (v, w)
+        names, v, w = self._step_commands(req)
+        find = self.sim.find
         for ns in req.observe:
-            if self.sim.find(ns) is None:
+            if find(ns) is None:
                 raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
-        self._steps.append(_StepJob(req, reply, commands))
+        self._steps.append(_StepJob(req, reply, names, v, w))
         return None
+
+    def _step_commands(self, req: StepRequest) -> tuple[list[str], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """A step's commands, checked, as namespaces and (v, w) columns."""
+        row_of = self.sim.robots.row_of
+        if req.commands is None:
+            names = list(req.cmd_vel)
+            values = np.array([(tw.linear.x, tw.angular.z) for tw in req.cmd_vel.values()], dtype=np.float64)
+            field = "cmd_vel"
+        else:
+            if req.cmd_vel:
+                raise FleetError(ErrorCode.INVALID_VALUE, "give cmd_vel or commands, not both", "commands")
+            names, raw = req.commands.names, req.commands.twist
+            if len(raw) != 16 * len(names):
+                raise FleetError(
+                    ErrorCode.INVALID_VALUE,
+                    f"commands.twist must hold 2 float64 for each of the {len(names)} names, got {len(raw)} bytes",
+                    "commands",
+                )
+            values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
+            field = "commands"
+        values = values.reshape(len(names), 2)
+        finite = np.isfinite(values).all(axis=1)
+        if not finite.all():
+            ns = names[int(np.argmin(finite))]
+            raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
+        for ns in names:
+            if row_of(ns) is None:
+                raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", field)
+        return names, values[:, 0].copy(), values[:, 1].copy()
 
     def _run_slice(self) -> None:
         """Run the current step for about SLICE_SECONDS (at least one tick)."""
         job = self._steps[0]
         end = self._wall() + SLICE_SECONDS
+        publish = job.request.publish
         while job.ran < job.request.ticks and not self.stop_event.is_set():
-            self.tick()
+            self.tick(publish)
             job.ran += 1
             if self._wall() >= end:
                 break
@@ -392,6 +444,8 @@ class Engine:
             _send(job.reply, self._step_result(job, cancelled=True))
 
     def _step_result(self, job: _StepJob, cancelled: bool) -> StepResult:
+        if job.request.packed:
+            return StepResult(self.clock(), job.ran, cancelled, packed=self._observe_packed(job.request.observe))
         states = {}
         scans = {}
         for key in job.request.observe:
@@ -403,6 +457,45 @@ class Engine:
             if scan is not None:
                 scans[key] = ScanRow(*scan)
         return StepResult(self.clock(), job.ran, cancelled, states, scans)
+
+    def _observe_packed(self, keys: list[str]) -> ObservedArrays:
+        """The odometry and latest scans of the robots ``keys`` names, as arrays: what their
+        topics carried (or would have, in a step that publishes nothing)."""
+        sim, t = self.sim, self.sim.robots
+        names: list[str] = []
+        rows: list[int] = []
+        for key in keys:
+            robot = sim.find(key)
+            if robot is not None:  # else deleted during the step
+                names.append(key)
+                rows.append(t.row(robot))
+        samples = sim.config.lidar.samples
+        snap = self._last_snap
+        odom = np.empty((len(rows), 6))
+        if snap is not None and snap.namespaces is t.namespaces:  # rows unchanged since the last tick
+            columns = (snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z)
+        else:  # a spawn or delete since (a cancelled step): the table's own columns
+            columns = (t.odom_x, t.odom_y, t.odom_yaw, t.vx, t.vy, t.wz)
+        for j, column in enumerate(columns):
+            odom[:, j] = column[rows]
+        scan_time = np.full(len(rows), np.nan)
+        ranges = np.full((len(rows), samples), np.nan, dtype=np.float32)
+        # the latest scans come from the last few ticks: copy them tick by tick, not robot by robot
+        by_tick: dict[int, tuple[TickSnapshot, list[int], list[int]]] = {}
+        latest_scan, namespaces = self._latest_scan, t.namespaces
+        for k, row in enumerate(rows):
+            latest = latest_scan.get(namespaces[row])
+            if latest is not None:
+                scan_snap, scan_row = latest
+                group = by_tick.get(id(scan_snap))
+                if group is None:
+                    group = by_tick[id(scan_snap)] = (scan_snap, [], [])
+                group[1].append(k)
+                group[2].append(scan_row)
+        for scan_snap, ks, scan_rows in by_tick.values():
+            ranges[ks] = scan_snap.scans[scan_rows]
+            scan_time[ks] = scan_snap.time
+        return ObservedArrays(names, odom, scan_time, ranges)
 
     def _event(self, event: Spawned | Deleted | WorldReset) -> None:
         for a in self.adapters:

@@ -28,6 +28,7 @@ from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 
 F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)
@@ -82,6 +83,18 @@ class RobotList:
 
 
 @dataclass(frozen=True)
+class ObservedArrays:
+    """The observations of a packed step, row by row in ``names`` order: ``odom`` (n, 6) is
+    each robot's odometry (x, y, yaw, linear x, linear y, angular z) after the step's last
+    tick, ``scan_time`` (n,) and ``ranges`` (n, samples) its latest scan (NaN before the first)."""
+
+    names: list[str]
+    odom: F64
+    scan_time: F64
+    ranges: F32
+
+
+@dataclass(frozen=True)
 class StepResult:
     """The answer to a step: the clock after it, the ticks that ran, and observations."""
 
@@ -90,6 +103,7 @@ class StepResult:
     cancelled: bool
     states: dict[str, RobotState] = field(default_factory=dict)
     scans: dict[str, ScanRow] = field(default_factory=dict)
+    packed: ObservedArrays | None = None  # instead of states and scans, when the step asked
 
 
 #: What a request is answered with: a core or engine value, or the error that refused it.

@@ -13,7 +13,7 @@ import zenoh
 
 from clients import FleetClient, wait_until
 from tests.conftest import Daemon
-from tests.zraw import get, ignore_reply, matching, raw_session
+from tests.zraw import get, get_json, ignore_reply, matching, raw_session
 
 LONG = "x" * 65
 SPAWN_CASES: list[tuple[str, bytes | None, str]] = [
@@ -372,3 +372,28 @@ def test_a_huge_step_freezes_nothing_and_a_pause_cancels_it(daemon_factory: Any)
     assert reply["tick"] == reply["ticks_run"] == paused.tick == c.clock().tick  # the step stopped there
     assert [r.name for r in c.robots()] == ["a", "b"]
     assert d.alive()
+
+
+def test_packed_commands_that_do_not_add_up_are_refused(daemon_factory: Any) -> None:
+    """JSON requests, as a person (or a client in another language) would send them: the
+    arrays travel as base64."""
+    import base64
+
+    d = daemon_factory("--lockstep", "--world", "empty")
+    c = d.client()
+    c.spawn("a", 0.0, 0.0)
+    eight = base64.b64encode(bytes(8)).decode()
+    sixteen = base64.b64encode(bytes(16)).decode()
+    short = {"ticks": 3, "commands": {"names": ["a"], "twist": eight}}
+    both = {"ticks": 3, "cmd_vel": {"a": {}}, "commands": {"names": ["a"], "twist": sixteen}}
+    not_base64 = {"ticks": 3, "commands": {"names": ["a"], "twist": "%%%"}}
+    with raw_session(d.endpoint) as s:
+        for body, words in (
+            (short, "2 float64 for each of the 1 names, got 8 bytes"),
+            (both, "not both"),
+            (not_base64, "base64"),
+        ):
+            ok, err = get_json(s, "fleet/sim/step", body)
+            assert ok is None and err is not None and words in err["message"], err
+        ok, _ = get_json(s, "fleet/sim/step", {"ticks": 3, "commands": {"names": ["a"], "twist": sixteen}})
+        assert ok is not None and ok["ticks_run"] == 3

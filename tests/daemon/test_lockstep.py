@@ -98,3 +98,78 @@ def test_the_real_time_factor_is_measured_right_after_a_resume(daemon_factory: C
     tick = resumed.tick
     assert wait_until(lambda: c.clock().tick >= tick + 3, 5.0)
     assert c.clock().real_time_factor > 0.3  # measured over the ticks since the resume, not 0.00
+
+
+def test_a_packed_step_returns_what_the_messages_say(daemon_factory: Callable[..., Daemon]) -> None:
+    """The arrays of a packed step hold, row for row, the odometry and scans the per-robot
+    observations carry; a quiet step moves the world as a publishing one does."""
+    from clients.api import observed_arrays
+
+    d = daemon_factory("--lockstep")
+    c = d.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.spawn("tb3_1", 0.5, -2.0, namespace="second")
+    c.spawn("tb3_2", 0.5, 0.5)
+    names = ["tb3_1", "tb3_0", "tb3_2"]
+    first = observed_arrays(c.step(1, observe=names, packed=True).packed)  # type: ignore[arg-type]
+    assert first.names == names and np.isnan(first.ranges).all() and np.isnan(first.scan_time).all()
+    cmds = {"tb3_0": (0.1, 0.3), "second": (0.2, -0.5)}
+    c.step(11, cmd_vel=cmds, publish=False)
+    reply = c.step(12, cmd_vel=cmds, observe=names, packed=True)
+    assert reply.observations == {} and reply.packed is not None
+    packed = observed_arrays(reply.packed)
+    c.reset()
+    c.step(1)  # the same run again, publishing, one message per robot
+    c.step(11, cmd_vel=cmds)
+    again = c.step(12, cmd_vel=cmds, observe=names).observations
+    for k, name in enumerate(names):
+        odom, scan = again[name].odom, again[name].scan
+        assert scan is not None
+        p, t = odom.pose.pose, odom.twist.twist
+        assert packed.odom[k, :2].tolist() == [p.position.x, p.position.y]
+        assert packed.odom[k, 3:].tolist() == [t.linear.x, t.linear.y, t.angular.z]
+        assert packed.odom[k, 2] == pytest.approx(2 * np.arctan2(p.orientation.z, p.orientation.w), abs=1e-12)
+        assert packed.scan_time[k] == scan.header.stamp.sec + scan.header.stamp.nanosec * 1e-9
+        assert np.array_equal(packed.ranges[k], scan.ranges_array(), equal_nan=True)
+
+
+def test_a_quiet_step_publishes_nothing(daemon_factory: Callable[..., Daemon]) -> None:
+    """Messages of one session arrive in order: if the quiet step had published, its odometry
+    would come before the next step's."""
+    d = daemon_factory("--lockstep", "--world", "empty")
+    c = d.client()
+    c.spawn("a", 0.0, 0.0)
+    seen: list[int] = []
+    with c.on_odom("a", lambda ns, m: seen.append(m.header.stamp.nanosec + m.header.stamp.sec * 10**9)):
+        c.step(6, cmd_vel={"a": (0.2, 0.0)}, publish=False)
+        last = c.step(1)
+        stamp = last.clock.sec * 10**9 + last.clock.nanosec
+        assert wait_until(lambda: stamp in seen, 5.0)
+    assert seen == [stamp]
+
+
+def test_commands_as_arrays_drive_as_cmd_vel_does_and_bad_ones_are_refused(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
+    d = daemon_factory("--lockstep", "--world", "empty")
+    c = d.client()
+    c.spawn("a", 0.0, 0.0)
+    c.spawn("b", 1.0, 1.0)
+    by_dict = c.step(20, cmd_vel={"a": (0.2, 0.4), "b": (-0.1, 1.0)}, observe=["a", "b"], packed=True)
+    c.reset()
+    values = np.array([[-0.1, 1.0], [0.2, 0.4]])
+    by_arrays = c.step(20, commands=(["b", "a"], values), observe=["a", "b"], packed=True)
+    assert by_dict.packed is not None and by_arrays.packed is not None
+    assert by_arrays.packed.odom == by_dict.packed.odom  # the same bytes
+    assert c.clock().tick == 20
+    bad = [
+        ((["a"], np.array([[np.nan, 0.0]])), "non_finite", "'a' is not finite"),
+        ((["ghost"], np.array([[0.1, 0.0]])), "not_found", "'ghost'"),
+    ]
+    for commands, code, words in bad:
+        with pytest.raises(FleetError, match=words) as e:
+            c.step(5, commands=commands)
+        assert e.value.code.value == code and e.value.field == "commands"
+    with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
+        c.step(5, commands=(["a", "b"], np.zeros(3)))
+    assert c.clock().tick == 20  # nothing stepped

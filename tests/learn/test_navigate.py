@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import time
 from typing import Any
 
 import gymnasium
@@ -13,6 +14,7 @@ from gymnasium.utils.env_checker import check_env
 import learn  # noqa: F401  (registers the environments)
 from learn.navigate import NavigateEnv
 from learn.task import GOAL_RADIUS
+from tests.conftest import free_port
 
 
 @pytest.mark.parametrize("kwargs", [{}, {"discrete": True}, {"model": "waffle", "beams": 36}])
@@ -186,10 +188,65 @@ def test_a_remote_daemon_gives_the_same_episode_as_the_core_in_process(daemon_fa
     local.close()
 
 
+def test_a_remote_fleet_gives_the_same_episodes_as_the_core_in_process(daemon_factory: Any) -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    d = daemon_factory("--lockstep")
+    c = d.client()
+    remote = FleetNavigateEnv(robots=3, endpoint=d.endpoint, publish=False)
+    local = FleetNavigateEnv(robots=3)
+    for episode in range(2):  # the second reset clears the first episode's robots off the daemon
+        got = [env.reset(seed=5 + episode) for env in (local, remote)]
+        assert all(np.allclose(got[0][0][a], got[1][0][a], atol=1e-5) for a in local.possible_agents)
+        rng = np.random.default_rng(episode)
+        steps = 0
+        while local.agents and steps < 60:
+            assert remote.agents == local.agents
+            actions = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in local.agents}
+            (o1, r1, t1, _, i1), (o2, r2, t2, _, i2) = (env.step(actions) for env in (local, remote))
+            for a in o1:
+                assert i1[a]["pose"][:2] == i2[a]["pose"][:2]  # bit for bit
+                assert np.allclose(o1[a], o2[a], atol=1e-5) and r1[a] == pytest.approx(r2[a], abs=1e-6)
+                assert t1[a] == t2[a]
+            steps += 1
+        assert steps > 5
+    left = {r.name for r in c.robots()}
+    assert left == set(remote.agents)  # the agents that left the episode left the daemon too
+    clock = c.clock()
+    remote.close()
+    local.close()
+    assert clock.paused and clock.tick > 0
+
+
 def test_a_remote_daemon_must_be_in_lockstep_and_in_the_same_world(daemon_factory: Any) -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
     running = daemon_factory()
     with pytest.raises(ValueError, match="--lockstep"):
         NavigateEnv(endpoint=running.endpoint)
     other = daemon_factory("--lockstep", "--world", "empty")
     with pytest.raises(ValueError, match="runs world 'empty'"):
         NavigateEnv(endpoint=other.endpoint)
+    with pytest.raises(ValueError, match="runs world 'empty'"):
+        FleetNavigateEnv(endpoint=other.endpoint)
+
+
+def test_an_unreachable_endpoint_is_reported_within_seconds() -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    for make in (NavigateEnv, FleetNavigateEnv):
+        t = time.monotonic()
+        with pytest.raises(ConnectionError, match=r"no fleetsim daemon at tcp/127\.0\.0\.1:"):
+            make(endpoint=f"tcp/127.0.0.1:{free_port()}")
+        assert time.monotonic() - t < 6.0
+
+
+def test_a_world_too_small_for_the_fleet_says_so() -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    env = FleetNavigateEnv(robots=40)  # 80 places a metre apart do not fit in turtlebot3_world
+    with pytest.raises(RuntimeError, match=r"no free place for 40 robots .* ask for fewer robots or a larger world"):
+        env.reset(seed=0)
+    env.close()
+    with pytest.raises(ValueError, match=r"robots must be in 1\.\.1000"):
+        FleetNavigateEnv(robots=0)

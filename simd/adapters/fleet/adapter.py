@@ -23,7 +23,7 @@ from typing import Any
 import zenoh
 
 from protocol.codec import encode
-from protocol.control import Clock, Observation, Request, RobotList, StepReply
+from protocol.control import Clock, Observation, PackedObservations, Request, RobotList, StepReply
 from protocol.errors import FleetError
 from protocol.keys import Keys
 from protocol.messages import Time
@@ -87,6 +87,17 @@ class FleetAdapter:
         return result  # a Clock already is the message
 
     def _step_reply(self, result: StepResult) -> StepReply:
+        fields = {f: getattr(result.clock, f) for f in result.clock.__struct_fields__}
+        if result.packed is not None:
+            p = result.packed
+            packed = PackedObservations(
+                names=p.names,
+                samples=p.ranges.shape[1],
+                odom=p.odom.astype("<f8").tobytes(),
+                scan_time=p.scan_time.astype("<f8").tobytes(),
+                ranges=p.ranges.astype("<f4").tobytes(),
+            )
+            return StepReply(**fields, ticks_run=result.ticks_run, cancelled=result.cancelled, packed=packed)
         spec = self.spec
         stamp = result.clock.clock
         observations: dict[str, Observation] = {}
@@ -100,7 +111,6 @@ class FleetAdapter:
             if row is not None:
                 scan = convert.laser_scan(s.namespace, Time.from_seconds(row.time), spec, row.ranges)
             observations[key] = Observation(odom=odom, scan=scan)
-        fields = {f: getattr(result.clock, f) for f in result.clock.__struct_fields__}
         return StepReply(**fields, ticks_run=result.ticks_run, cancelled=result.cancelled, observations=observations)
 
     # -- the engine's side (simulation thread) ----------------------------------------------------
