@@ -18,7 +18,8 @@ takes milliseconds instead of a Gazebo restart.
   for a collision (a return closer than 2 cm outside the footprint, or below the lidar's
   minimum range).
 - **End**: ``terminated`` on arrival or collision; ``truncated`` after ``max_steps`` steps.
-- **Episodes**: start and goal drawn uniformly over the world's free space (the robot's
+- **Episodes**: start and goal drawn uniformly over the free space the robot can drive to
+  from the world's spawn (learn/reach.py: not the floor outside turtlebot3_world's wall; the
   footprint clear of everything, with room to see; at least a metre apart) from the env's
   generator; ``reset(seed=s)`` reseeds it and the lidar noise, so a seed replays an episode
   exactly. ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes either.
@@ -47,6 +48,7 @@ from learn.task import (
     check_settings,
     collided,
     command,
+    drivable,
     footprint_ranges,
     free_pose,
     observation_bounds,
@@ -91,6 +93,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         spec = self.sim.config.lidar
         self.range_max = spec.range_max
         self._footprint = footprint_ranges(self.model, spec.samples)
+        self.region = drivable(self.sim, self.model)  # where starts and goals are drawn
         self.remote = _Remote(endpoint, prefix, self.sim.world.name, publish) if endpoint is not None else None
         self._state: tuple[tuple[float, float, float], tuple[float, float]] = ((0.0, 0.0, 0.0), (0.0, 0.0))
         x0, x1, y0, y1 = self.sim.world.bounds
@@ -222,7 +225,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self._state = state_of(self.sim, ROBOT)
 
     def _free_pose(self, rng: np.random.Generator) -> tuple[float, float, float]:
-        return free_pose(self.sim, self.model, rng)
+        return free_pose(self.sim, self.model, rng, region=self.region)
 
     def _pose(self) -> tuple[float, float, float]:
         return self._state[0]

@@ -43,6 +43,7 @@ from learn.task import (
     check_settings,
     collided_many,
     command_many,
+    drivable,
     footprint_ranges,
     free_pose,
     observation_bounds,
@@ -100,6 +101,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         )
         samples = self.sim.config.lidar.samples
         self._footprint = footprint_ranges(self.model, samples)
+        self.region = drivable(self.sim, self.model)  # where starts and goals are drawn
         self._rng = np.random.default_rng()
         # a row per possible agent
         self._scan = np.zeros((robots, samples), dtype=np.float32)
@@ -172,7 +174,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
 
     def _free_pose(self, taken: list[tuple[float, float]]) -> tuple[float, float, float]:
         try:
-            return free_pose(self.sim, self.model, self._rng, tuple(taken))
+            return free_pose(self.sim, self.model, self._rng, tuple(taken), self.region)
         except RuntimeError:
             raise RuntimeError(
                 f"no free place for {len(self.possible_agents)} robots and their goals in "

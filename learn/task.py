@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from learn.reach import Reachable, reachable
 from protocol.control import SpawnRequest
 from protocol.errors import FleetError
 from simd.core.models import RobotModel
@@ -96,15 +97,19 @@ def command_many(actions: list[Any], model: RobotModel, discrete: bool) -> npt.N
 
 
 def free_pose(
-    sim: Simulation, model: RobotModel, rng: np.random.Generator, keep_clear: tuple[tuple[float, float], ...] = ()
-) -> tuple[float, float, float]:
-    """A pose where the footprint is clear with 15 cm to spare each way, inside the bounds, and
-    at least a metre from the points in ``keep_clear`` (other robots' starts and goals)."""
+    sim: Simulation, model: RobotModel, rng: np.random.Generator, keep_clear: tuple[tuple[float, float], ...] = (),
+    region: Reachable | None = None,
+) -> tuple[float, float, float]:  # fmt: skip
+    """A pose where the footprint is clear with 15 cm to spare each way, inside the bounds, in
+    ``region`` (where the robot can drive from the world's spawn, learn/reach.py), and at least
+    a metre from the points in ``keep_clear`` (other robots' starts and goals)."""
     x0, x1, y0, y1 = sim.world.bounds
     pad = 0.3
     for _ in range(10_000):
         x, y = float(rng.uniform(x0 + pad, x1 - pad)), float(rng.uniform(y0 + pad, y1 - pad))
         yaw = float(rng.uniform(-math.pi, math.pi))
+        if region is not None and not region.contains(x, y):
+            continue
         if any(math.dist((x, y), p) < 1.0 for p in keep_clear):
             continue
         try:
@@ -165,6 +170,12 @@ def state_of(sim: Simulation, name: str) -> tuple[tuple[float, float, float], tu
     """A robot's pose and (linear, angular) velocity in an in-process simulation."""
     s = sim.state(sim.find(name))  # type: ignore[arg-type]
     return (s.x, s.y, s.yaw), (s.linear_velocity, s.angular_velocity)
+
+
+def drivable(sim: Simulation, model: RobotModel) -> Reachable:
+    """Where a robot of this model can drive from the world's spawn (learn/reach.py)."""
+    radius = float(np.max(np.hypot(model.outline[:, 0], model.outline[:, 1])))
+    return reachable(sim.world, radius)
 
 
 def footprint_ranges(model: RobotModel, samples: int) -> npt.NDArray[np.float64]:
