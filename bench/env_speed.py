@@ -34,7 +34,7 @@ machine that gets busier or quieter affects both; the table gives the minimum, m
 maximum steps a second of each, sim seconds a wall second, and the ratio of the medians, under the
 machine, the commit and the command. Each run line also gives the stepping process's CPU seconds a
 wall second (well under 1: the run shared its core with something else), and the table the steps
-a CPU second, a second ratio that a busy machine disturbs less. Results are in docs/learn.md.
+a CPU second, a second ratio that a busy machine disturbs less. Results are in docs/learning.md.
 """
 
 from __future__ import annotations

@@ -206,6 +206,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"machine: {machine_line(info)}")
     progress = Progress()
     arena = make_arena(args.robots)
+    x, y, yaw = arena.poses[0]  # the envs draw where the robots can drive from the spawn: the open floor, not a pen
+    arena.world["default_spawn"] = {"x": x, "y": y, "yaw": yaw}
     parts: list[Part] = []
     daemons: list[DaemonProc] = []
     with tempfile.TemporaryDirectory(prefix="learn_bench_") as tmp_name:

@@ -1,4 +1,4 @@
-"""Reinforcement-learning environments on fleetsim's simulation core (docs/learn.md).
+"""Reinforcement-learning environments on fleetsim's simulation core (docs/learning.md).
 
 Importing this package registers them with Gymnasium::
 

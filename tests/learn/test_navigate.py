@@ -76,13 +76,21 @@ def test_driving_into_a_wall_ends_the_episode_with_a_penalty() -> None:
     assert terminated and info["collided"] and reward < 0
 
 
-def test_vector_envs_step_in_lockstep() -> None:
-    envs = gymnasium.make_vec("fleetsim/Navigate-v0", num_envs=3, vectorization_mode="sync")
-    obs, _ = envs.reset(seed=5)
-    assert obs.shape == (3, 28)
-    obs, rewards, *_ = envs.step(np.zeros((3, 2), np.float32))
-    assert obs.shape == (3, 28) and rewards.shape == (3,)
-    envs.close()
+def test_vector_envs_step_in_lockstep_in_one_process_or_several() -> None:
+    actions = np.random.default_rng(0).uniform(-1, 1, (10, 2, 2)).astype(np.float32)
+    seen = {}
+    for mode in ("sync", "async"):  # async: a process for each env
+        envs = gymnasium.make_vec("fleetsim/Navigate-v0", num_envs=2, vectorization_mode=mode)
+        obs, _ = envs.reset(seed=5)
+        assert obs.shape == (2, 28)
+        trace = [obs]
+        for a in actions:
+            obs, rewards, *_ = envs.step(a)
+            assert obs.shape == (2, 28) and rewards.shape == (2,)
+            trace.append(obs)
+        envs.close()
+        seen[mode] = np.stack(trace)
+    assert np.array_equal(seen["sync"], seen["async"])  # the same episodes either way
 
 
 def test_actions_outside_the_space_are_clipped_and_nonsense_is_refused() -> None:
