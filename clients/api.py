@@ -32,6 +32,7 @@ import zenoh
 from protocol.codec import decode, encode
 from protocol.control import (
     Clock,
+    DaemonInfo,
     DeleteRequest,
     PackedCommands,
     PackedObservations,
@@ -46,7 +47,7 @@ from protocol.control import (
 from protocol.errors import ErrorCode, ErrorReply, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
-from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions
+from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions, zenoh_error_text
 
 T = TypeVar("T")
 
@@ -100,7 +101,7 @@ class FleetClient:
         except zenoh.ZError as e:
             raise FleetError(
                 ErrorCode.UNAVAILABLE,
-                f"cannot reach a fleetsim daemon at {options.endpoints()}: {_short(e)} "
+                f"cannot reach a fleetsim daemon at {options.endpoints()}: {zenoh_error_text(e)} "
                 "(is simd running? start it with: simd)",
             ) from None
         self._subs: list[Subscription] = []
@@ -183,6 +184,14 @@ class FleetClient:
     def robot(self, key: str) -> RobotRecord | None:
         """The record of a robot by name or namespace, or None."""
         return next((r for r in self.robots() if key in (r.name, r.namespace)), None)
+
+    def daemons(self) -> list[DaemonInfo]:
+        """Every daemon serving this prefix, by id (each answers ``P/daemons`` for itself)."""
+        found = []
+        for reply in self.session.get(f"{self.keys.daemons}?format=msgpack", timeout=self.timeout):
+            if reply.ok is not None:
+                found.append(decode(reply.ok.payload.to_bytes(), DaemonInfo))
+        return sorted(found, key=lambda d: d.id)
 
     def world(self) -> WorldInfo:
         return self._query(self.keys.world, None, WorldInfo)
@@ -462,14 +471,6 @@ def observed_arrays(packed: PackedObservations) -> ObservedFleet:
         scan_time=np.frombuffer(packed.scan_time, dtype="<f8"),
         ranges=np.frombuffer(packed.ranges, dtype="<f4").reshape(n, packed.samples),
     )
-
-
-def _short(e: BaseException) -> str:
-    msg = str(e).strip()
-    cut = msg.rfind(" at ")
-    if cut > 0 and ".rs:" in msg[cut:]:
-        msg = msg[:cut]
-    return msg
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float, interval: float = 0.02) -> bool:

@@ -13,6 +13,7 @@ The spawner speaks the TurtleBot3 user's language: the positional form of the se
     fleet spawn --file tb3_multi               # the four-robot launch
     fleet list
     fleet delete burger_1
+    fleet daemons                              # which daemons serve the fleet
 
 Exit codes: 0 success; 1 refused by the daemon (its reason on stderr as
 ``fleet: <code>: <message>``); 2 usage error; 3 no daemon answered within ``--timeout``.
@@ -24,6 +25,7 @@ import argparse
 import math
 import os
 import sys
+import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -240,6 +242,27 @@ def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> in
     return EXIT_OK
 
 
+def _run_daemons(client: FleetClient, args: argparse.Namespace, plan: object) -> int:
+    found = client.daemons()
+    if args.json:
+        _print_json(found)
+        return EXIT_OK
+    if not found:
+        return _no_daemon(args)
+    now = time.time()
+    rows = [("ID", "WORLD", "HOST", "PID", "UP")]
+    rows += [(d.id, d.world, d.host, str(d.pid), _duration(now - d.started)) for d in found]
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    for r in rows:
+        print("  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip(), flush=True)
+    return EXIT_OK
+
+
+def _duration(seconds: float) -> str:
+    s = max(0, int(seconds))
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
 def _run_world(client: FleetClient, args: argparse.Namespace, plan: object) -> int:
     w = client.world()
     if args.json:
@@ -295,6 +318,7 @@ _HANDLERS: dict[str, _Handler] = {
     "delete": _Handler(_run_delete),
     "list": _Handler(_run_list),
     "world": _Handler(_run_world),
+    "daemons": _Handler(_run_daemons),
     "clock": _Handler(_run_clock),
     "pause": _Handler(_run_pause),
     "resume": _Handler(_run_resume),

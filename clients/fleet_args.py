@@ -7,9 +7,7 @@ import argparse
 from protocol.keys import DEFAULT_PREFIX
 from protocol.zenoh_config import add_zenoh_args
 
-COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step")
-
-
+COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step", "daemons")
 
 
 def add_daemon_args(p: argparse.ArgumentParser, waiting: str = "seconds to wait for the daemon") -> None:
@@ -95,6 +93,7 @@ def build_parser(
     add("delete", "delete robots by name or namespace").add_argument("names", nargs="+", metavar="NAME")
     add("list", "list the live robots with model, pose and velocity, in name order (burger_2 before burger_10)")
     add("world", "describe the loaded world")
+    add("daemons", "list the daemons that serve the fleet (id, world, host, pid, up since)")
     add("clock", "show the simulation clock")
     add("pause", "pause the simulation")
     add("resume", "resume a paused simulation")

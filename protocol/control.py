@@ -179,6 +179,18 @@ class RobotList(msgspec.Struct, kw_only=True):
     robots: list[RobotRecord]
 
 
+class DaemonInfo(msgspec.Struct, kw_only=True):
+    """``P/daemons``: who a daemon is (each daemon of the fleet answers with its own)."""
+
+    id: str
+    world: str
+    host: str
+    pid: int
+    zid: str
+    #: wall-clock time it started (Unix seconds)
+    started: float
+
+
 class Bounds(msgspec.Struct, kw_only=True):
     x_min: float
     x_max: float

@@ -18,6 +18,8 @@ key                    declared by simd as         payload     reply / notes
 ``P/<ns>/alive``       liveliness token            --          present while the robot lives
 ``P/odometry``         publisher 30 Hz, on demand  FleetOdometry  every robot's odometry of a tick
 ``P/scans``            publisher, on demand        FleetScans  the scans of a tick (the group due)
+``P/daemons``          queryable                   (none)      DaemonInfo, one reply a daemon
+``P/daemons/<id>``     liveliness token            --          present while daemon ``<id>`` runs
 =====================  ==========================  ==========  ======================================
 """
 
@@ -87,6 +89,15 @@ class Keys:
     def fleet_scan(self) -> str:
         """The scans of one tick in one message; published while someone listens."""
         return self._k("scans")
+
+    @property
+    def daemons(self) -> str:
+        """Every daemon of the fleet answers here with its :class:`~protocol.control.DaemonInfo`."""
+        return self._k("daemons")
+
+    def daemon(self, daemon_id: str) -> str:
+        """The liveliness token of daemon ``daemon_id``."""
+        return self._k("daemons", daemon_id)
 
     def cmd_vel(self, ns: str) -> str:
         return self._k(ns, "cmd_vel")

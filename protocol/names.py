@@ -28,6 +28,7 @@ RESERVED_WORDS = frozenset(
         "alive",
         "odometry",  # the fleet topics P/odometry and P/scans
         "scans",
+        "daemons",  # P/daemons and the daemons' liveliness tokens P/daemons/<id>
     }
 )
 

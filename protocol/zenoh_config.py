@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -198,3 +199,14 @@ def options_from_args(args: argparse.Namespace, *, server: bool) -> ZenohOptions
         if not server and not opts.connect:
             opts.connect = [DEFAULT_ENDPOINT]
     return opts
+
+
+def zenoh_error_text(e: BaseException) -> str:
+    """What a zenoh error says, for a one-line message: without the Rust source locations
+    (`` at /path/to/file.rs:NN``) and the JSON5 wrapper around a config error's message."""
+    msg = str(e).strip().strip("'")
+    found = re.search(r'msg: "(.*?)"', msg)
+    if found:
+        msg = found.group(1)
+    msg = re.sub(r"\s+at /\S*?\.rs:\d+\.?", "", msg)
+    return msg.strip() or type(e).__name__

@@ -12,9 +12,11 @@ from collections.abc import Mapping
 from pathlib import Path
 from types import FrameType
 
+from protocol.errors import FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.names import check_name
 from protocol.ros_domain import domain_id
-from protocol.zenoh_config import add_zenoh_args, options_from_args
+from protocol.zenoh_config import add_zenoh_args, options_from_args, zenoh_error_text
 
 log = logging.getLogger("simd")
 
@@ -41,6 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
         "YAML (map.yaml + its image: the occupied cells become walls)",
     )
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
+    p.add_argument(
+        "--id",
+        default="simd",
+        help="this daemon's name in the fleet (its liveliness token P/daemons/ID; fleet daemons lists them; "
+        "default: %(default)s)",
+    )
     p.add_argument(
         "--seed",
         type=int,
@@ -168,7 +176,10 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--odom-noise must be in 0..0.5 (a fraction of each wheel's travel)")
     try:
         keys = Keys(args.prefix)
+        check_name(args.id, "--id")
         ros_domain, ros_distro = ros_settings(args, os.environ) if args.ros2 else (0, "jazzy")
+    except FleetError as e:
+        return fail(e.message)
     except ValueError as e:
         return fail(str(e))
 
@@ -230,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router))
         except (ValueError, zenoh.ZError) as e:
-            msg = _short(e)
+            msg = zenoh_error_text(e)
             if "in use" in msg.lower():
                 msg = "address already in use (is rmw_zenohd running there? then leave out --ros-serve-router)"
             return fail(f"cannot open the ROS 2 session on {router}: {msg}")
@@ -249,13 +260,13 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, zenoh.ZError) as e:
         if ros_session is not None:
             ros_session.close()
-        return fail(f"bad zenoh configuration: {_short(e)}")
+        return fail(f"bad zenoh configuration: {zenoh_error_text(e)}")
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as e:
         if ros_session is not None:
             ros_session.close()
-        msg = _short(e)
+        msg = zenoh_error_text(e)
         if "in use" in msg.lower():
             return fail(f"cannot listen on {opts.endpoints()}: address already in use (is another simd running?)")
         return fail(f"cannot open zenoh session on {opts.endpoints()}: {msg}")
@@ -266,11 +277,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"simd: warning: listening on {', '.join(exposed)} without authentication: anyone who can reach it "
               "can spawn, delete and drive robots and answer in the daemon's place; for a secured fleet see "
               "docs/security.md (fleet-security init)", file=sys.stderr, flush=True)  # fmt: skip
+    from simd.adapters.fleet.presence import Presence, serving
+
+    others = serving(session, keys)
+    if others:
+        session.close()
+        if ros_session is not None:
+            ros_session.close()
+        sim.close()
+        return fail(
+            f"daemon {others[0]!r} already serves prefix {keys.prefix!r} on this network (fleet daemons "
+            f"lists it): run this one with another --prefix; daemons cannot share one fleet yet"
+        )
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver)
     adapter: FleetAdapter | None = None
+    presence: Presence | None = None
     ros_adapter = None
     try:
         adapter = FleetAdapter(session, keys, engine)
+        presence = Presence(session, keys, args.id, world.name)
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
 
@@ -291,8 +316,8 @@ def main(argv: list[str] | None = None) -> int:
             where = f"fleet protocol through the ROS router at {router}"
         else:
             where = f"listening on {opts.endpoints()}"
-        print(f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; {where}; prefix '{keys.prefix}'",
-              flush=True)  # fmt: skip
+        print(f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; {where}; prefix '{keys.prefix}'; "
+              f"id '{args.id}'", flush=True)  # fmt: skip
         slow = {name: why.removeprefix("numpy (").removesuffix(")") for name, why in fast.items() if why != "native"}
         if slow:  # a user who wonders why the daemon is slow should see this
             reasons = set(slow.values())
@@ -309,6 +334,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         engine.run()
     finally:
+        if presence is not None:
+            presence.close()
         if ros_adapter is not None:
             ros_adapter.close()
         if adapter is not None:
@@ -319,15 +346,6 @@ def main(argv: list[str] | None = None) -> int:
         session.close()
     log.info("stopped at sim time %.3f s", sim.time)
     return 0
-
-
-def _short(e: BaseException) -> str:
-    """zenoh errors end with ' at /path/to/file.rs:NN'; keep the message."""
-    msg = str(e).strip()
-    cut = msg.rfind(" at ")
-    if cut > 0 and msg.endswith(tuple("0123456789")) and ".rs:" in msg[cut:]:
-        msg = msg[:cut]
-    return msg
 
 
 if __name__ == "__main__":

@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from protocol.keys import DEFAULT_PREFIX
-from protocol.zenoh_config import ZenohOptions
+from protocol.zenoh_config import ZenohOptions, zenoh_error_text
 from simd.container_entry import DEFAULT_LISTEN, DEFAULT_STATE_FILE, local_endpoint
 
 DEFAULT_TIMEOUT = 2.0
@@ -69,15 +69,6 @@ def resolve_target(connect: Sequence[str] | None, prefix: str | None, env: Mappi
     return Target(endpoints, prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "environment")
 
 
-def _short(e: BaseException) -> str:
-    """zenoh errors end with ' at /path/to/file.rs:NN'; keep the message."""
-    msg = str(e).strip().strip("'")
-    cut = msg.rfind(" at ")
-    if cut > 0 and ".rs:" in msg[cut:]:
-        msg = msg[:cut]
-    return msg
-
-
 def check(target: Target, timeout: float, config_file: str | None = None) -> tuple[bool, str]:
     """Query ``<prefix>/clock``; (healthy, message)."""
     import zenoh
@@ -89,7 +80,7 @@ def check(target: Target, timeout: float, config_file: str | None = None) -> tup
     try:
         session: Any = zenoh.open(conf)
     except zenoh.ZError as e:
-        return False, f"cannot connect to {where}: {_short(e)}"
+        return False, f"cannot connect to {where}: {zenoh_error_text(e)}"
     try:
         left = max(0.2, timeout - (time.monotonic() - t0))
         key = f"{target.prefix}/clock"
