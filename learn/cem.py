@@ -18,7 +18,7 @@ The policy sees, per sector, how close the nearest return is within ``--near`` m
 1 touching), the goal's distance (in units of 3 m), the sine and cosine of its bearing, and the
 velocities as fractions of the limits; its two outputs are the action (fractions of the limits).
 
-Train (4½ minutes on two cores; a line a generation; writes cem_out/policy.npz,
+Train (3½ minutes on two cores; a line a generation; writes cem_out/policy.npz,
 cem_out/curve.csv and cem_out/learning_curve.png, the picture needing matplotlib, the ``bench``
 extra)::
 

@@ -35,9 +35,10 @@ from typing import Any
 
 import gymnasium
 import numpy as np
+import numpy.typing as npt
 from gymnasium import spaces
 
-from learn.remote import connect
+from learn.remote import Daemon
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
@@ -126,6 +127,14 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         if self.remote is not None:
             self.remote.reset(noise_seed)
         chosen_start, chosen_goal = _chosen(options)
+        if chosen_goal is not None:
+            gx, gy = chosen_goal
+            x0, x1, y0, y1 = self.sim.world.bounds
+            if not (x0 <= gx <= x1 and y0 <= gy <= y1) or self.sim.physics.blocker(self.model, gx, gy, 0.0) == -1:
+                raise ValueError(
+                    f"options['goal'] {chosen_goal}: a {self.model.name} could not stand there "
+                    f"(outside the world's bounds or in an obstacle)"
+                )
         for _ in range(1000):
             start = chosen_start or self._free_pose(rng)
             goal = chosen_goal or self._free_pose(rng)[:2]
@@ -144,6 +153,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             raise RuntimeError(f"no free start in {self.sim.world.name!r} after 1000 draws")
         self.steps = 0
         self._distance = self._goal_distance()
+        if self.render_mode == "human":
+            self.render()
         return self._observation(), self._info()
 
     def step(self, action: Any) -> tuple[F32, float, bool, bool, dict[str, Any]]:
@@ -166,15 +177,21 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             self.render()
         return self._observation(), float(reward), terminated, truncated, info
 
-    def render(self) -> F32 | None:
+    def render(self) -> npt.NDArray[np.uint8] | None:
         from learn.picture import top_down
 
         here = [(ROBOT, self.model, self._pose())] if self._in_episode else []
         image = top_down(self.sim.world, here, self.goal, ROBOT, self._scan)
         if self.render_mode == "rgb_array":
-            return image  # type: ignore[return-value]
+            return image
         if self.render_mode == "human":
-            import matplotlib.pyplot as plt
+            try:
+                import matplotlib.pyplot as plt
+            except ImportError:
+                raise ImportError(
+                    "render_mode='human' draws with matplotlib: pip install matplotlib (or the bench extra), "
+                    "or use render_mode='rgb_array'"
+                ) from None
 
             if self._window is None:
                 plt.ion()
@@ -187,7 +204,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
 
     def close(self) -> None:
         if self.remote is not None:
-            self.remote.client.close()
+            self.remote.daemon.close()
+            self.remote = None
         self.sim.close()
 
     # -- the pieces -------------------------------------------------------------------------
@@ -272,13 +290,12 @@ class _Remote:
     """The robot on a running simd (learn/remote.py), stepped with its observation in the reply."""
 
     def __init__(self, endpoint: str, prefix: str, world: str, publish: bool) -> None:
-        self.client = connect(endpoint, prefix, world)
+        self.daemon = Daemon(endpoint, prefix, world, frozenset({ROBOT}))
+        self.client = self.daemon.client
         self.publish = publish
 
     def reset(self, noise_seed: int) -> None:
-        self.client.reset(noise_seed)
-        if self.client.robot(ROBOT) is not None:
-            self.client.delete(ROBOT)
+        self.daemon.reset(noise_seed)
 
     def step(self, v: float, w: float) -> tuple[F32, tuple[tuple[float, float, float], tuple[float, float]]]:
         reply = self.client.step(TICKS_A_STEP, cmd_vel={ROBOT: (v, w)}, observe=[ROBOT], publish=self.publish)

@@ -32,7 +32,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from clients.api import observed_arrays
-from learn.remote import connect
+from learn.remote import Daemon
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
@@ -56,6 +56,16 @@ from simd.core.sim import SimConfig, Simulation
 TICKS_A_STEP = 6
 #: the most agents one env takes (a daemon's default robot limit is 5 000)
 MAX_AGENTS = 1000
+#: a placement that finds no free place in this many draws starts over; after this many such
+#: dead ends the world is taken to be too small for the fleet
+DRAWS_A_PLACE = 2000
+PLACE_TRIES = 50
+
+
+class _NoPlace(Exception):
+    """The starts and goals drawn so far leave no place for the next."""
+
+
 #: cast the scans on the core's lidar thread, beside the physics (the same scans, bit for bit)
 LIDAR_THREAD = True
 
@@ -112,7 +122,10 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self._command = np.zeros((robots, 2))  # held until an agent's next action
         self.steps = 0
         self.publish = publish
-        self.remote = connect(endpoint, prefix, self.sim.world.name) if endpoint is not None else None
+        self.daemon = (
+            Daemon(endpoint, prefix, self.sim.world.name, frozenset(self.possible_agents)) if endpoint else None
+        )
+        self.remote = self.daemon.client if self.daemon is not None else None
 
     @property
     def goals(self) -> dict[str, tuple[float, float]]:
@@ -132,12 +145,23 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             self._rng = np.random.default_rng(seed)
         noise_seed = int(self._rng.integers(2**31))
         self.sim.reset(noise_seed)
-        if self.remote is not None:
-            self.remote.reset(noise_seed)
+        if self.daemon is not None:
+            self.daemon.reset(noise_seed)
         self._remove_all()
+        dead_ends = 0
         for _ in range(100):
-            if self._place():
-                break
+            try:
+                if self._place():
+                    break
+            except _NoPlace:  # the places drawn so far leave none for the next: draw them all anew
+                dead_ends += 1
+                if dead_ends == PLACE_TRIES:
+                    self._remove_all()
+                    raise RuntimeError(
+                        f"no free place for {len(self.possible_agents)} robots and their goals in "
+                        f"{self.sim.world.name!r} (each a metre from the others) in {PLACE_TRIES} tries: "
+                        "ask for fewer robots or a larger world"
+                    ) from None
             self._remove_all()
         else:
             raise RuntimeError(
@@ -174,21 +198,16 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
 
     def _free_pose(self, taken: list[tuple[float, float]]) -> tuple[float, float, float]:
         try:
-            return free_pose(self.sim, self.model, self._rng, tuple(taken), self.region)
+            return free_pose(self.sim, self.model, self._rng, tuple(taken), self.region, tries=DRAWS_A_PLACE)
         except RuntimeError:
-            raise RuntimeError(
-                f"no free place for {len(self.possible_agents)} robots and their goals in "
-                f"{self.sim.world.name!r} (each a metre from the others): ask for fewer robots or a larger world"
-            ) from None
+            raise _NoPlace from None
 
     def _remove_all(self) -> None:
         """Every robot of this env out of the world (here, and on the daemon)."""
         for s in self.sim.states():
             self.sim.delete(s.name)
-        if self.remote is not None:
-            for r in self.remote.robots():
-                if r.name in self._index:
-                    self.remote.delete(r.name)
+        if self.daemon is not None:
+            self.daemon.remove_own()
 
     def step(self, actions: dict[str, Any]) -> tuple[
         dict[str, F32], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]
@@ -196,6 +215,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         if not actions.keys() <= set(self.agents):
             unknown = sorted(set(actions) - set(self.agents))
             raise ValueError(f"actions for agents not in the episode: {unknown} (live: {self.agents})")
+        if not self.agents:  # everybody has left: nothing moves, nothing to report (PettingZoo's convention)
+            return {}, {}, {}, {}, {}
         names = list(actions)
         try:
             commands = command_many([actions[a] for a in names], self.model, self.discrete)
@@ -251,8 +272,9 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         return {a: goals[a] for a in agents}
 
     def close(self) -> None:
-        if self.remote is not None:
-            self.remote.close()
+        if self.daemon is not None:
+            self.daemon.close()
+            self.daemon = self.remote = None
         self.sim.close()
 
     def _advance(self, live: npt.NDArray[np.int64]) -> None:

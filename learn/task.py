@@ -98,14 +98,14 @@ def command_many(actions: list[Any], model: RobotModel, discrete: bool) -> npt.N
 
 def free_pose(
     sim: Simulation, model: RobotModel, rng: np.random.Generator, keep_clear: tuple[tuple[float, float], ...] = (),
-    region: Reachable | None = None,
+    region: Reachable | None = None, tries: int = 10_000,
 ) -> tuple[float, float, float]:  # fmt: skip
     """A pose where the footprint is clear with 15 cm to spare each way, inside the bounds, in
     ``region`` (where the robot can drive from the world's spawn, learn/reach.py), and at least
     a metre from the points in ``keep_clear`` (other robots' starts and goals)."""
     x0, x1, y0, y1 = sim.world.bounds
     pad = 0.3
-    for _ in range(10_000):
+    for _ in range(tries):
         x, y = float(rng.uniform(x0 + pad, x1 - pad)), float(rng.uniform(y0 + pad, y1 - pad))
         yaw = float(rng.uniform(-math.pi, math.pi))
         if region is not None and not region.contains(x, y):
@@ -119,7 +119,7 @@ def free_pose(
         if all(sim.physics.blocker(model, x + dx, y + dy, yaw) is None
                for dx, dy in ((0.15, 0), (-0.15, 0), (0, 0.15), (0, -0.15))):  # fmt: skip
             return x, y, yaw
-    raise RuntimeError(f"no free place in {sim.world.name!r} after 10 000 draws")
+    raise RuntimeError(f"no free place in {sim.world.name!r} after {tries} draws")
 
 
 def collided(scan: F32, footprint: npt.NDArray[np.float64]) -> bool:

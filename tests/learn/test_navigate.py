@@ -165,6 +165,7 @@ def test_robots_see_each_other_and_leave_the_world_when_done() -> None:
     assert not env.agents and len(env.sim) == 0
     with pytest.raises(ValueError, match="not in the episode"):
         env.step({"tb3_0": np.zeros(2, np.float32)})
+    assert env.step({}) == ({}, {}, {}, {}, {})  # nobody left: nothing to report
 
 
 # -- remote: a running simd in lockstep --------------------------------------------------------
@@ -258,3 +259,44 @@ def test_a_world_too_small_for_the_fleet_says_so() -> None:
     env.close()
     with pytest.raises(ValueError, match=r"robots must be in 1\.\.1000"):
         FleetNavigateEnv(robots=0)
+
+
+def test_one_env_drives_a_daemon_and_takes_its_robots_when_it_closes(daemon_factory: Any) -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    d = daemon_factory("--lockstep")
+    c = d.client()
+    first = NavigateEnv(endpoint=d.endpoint)
+    first.reset(seed=1)
+    with pytest.raises(ValueError, match="another environment drives the daemon"):
+        NavigateEnv(endpoint=d.endpoint)  # two would reset each other's worlds (a vector env: a daemon each)
+    first.close()
+    assert c.robots() == []  # its robot went with it
+    fleet = FleetNavigateEnv(robots=2, endpoint=d.endpoint)  # and the daemon is free again
+    fleet.reset(seed=2)
+    assert sorted(r.name for r in c.robots()) == ["tb3_0", "tb3_1"]
+    c.spawn("intruder", 0.5, -1.8)
+    with pytest.raises(ValueError, match=r"robots this environment does not own \(intruder\)"):
+        fleet.reset(seed=3)
+    fleet.close()
+    assert [r.name for r in c.robots()] == ["intruder"]  # somebody else's robot stays
+
+
+def test_a_malformed_endpoint_or_goal_is_a_clear_error() -> None:
+    with pytest.raises(ConnectionError, match="cannot connect to 'bogus': Endpoints must be of the form"):
+        NavigateEnv(endpoint="bogus")
+    env = NavigateEnv()
+    for goal in ((100.0, 100.0), (0.0, 0.0)):  # outside the world; in turtlebot3_world's middle pillar
+        with pytest.raises(ValueError, match="could not stand there"):
+            env.reset(seed=0, options={"goal": goal})
+    env.close()
+
+
+def test_a_fleet_that_fits_is_placed_whatever_the_seed() -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    env = FleetNavigateEnv(robots=7, lidar_noise=False)  # 14 places a metre apart in the hexagon: tight
+    for seed in range(12):
+        observations, _ = env.reset(seed=seed)
+        assert len(observations) == 7
+    env.close()
