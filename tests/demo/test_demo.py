@@ -86,5 +86,6 @@ def test_ctrl_c_ends_the_demo_with_status_0_and_leaves_no_daemon(tmp_path: Path)
         if demo.poll() is None:
             os.killpg(demo.pid, signal.SIGKILL)
     assert not processes_with(endpoint), "simd or the log follower outlived the demo"
-    with socket.socket() as s:  # and its port is free again
-        s.bind(("127.0.0.1", port))
+    with socket.socket() as s:  # and its port is free again, for a new daemon (zenoh's listener reuses
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # addresses: a closed connection in
+        s.bind(("127.0.0.1", port))  # TIME_WAIT, seen on a loaded machine, does not keep it out)
