@@ -52,6 +52,7 @@ from learn.task import (
 from protocol.control import SpawnRequest
 from simd.core.mapworld import load_world_or_map
 from simd.core.sim import SimConfig, Simulation
+from simd.core.snapshot import TickSnapshot
 
 TICKS_A_STEP = 6
 #: the most agents one env takes (a daemon's default robot limit is 5 000)
@@ -120,6 +121,9 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self._goal = np.zeros((robots, 2))
         self._distance = np.zeros(robots)
         self._command = np.zeros((robots, 2))  # held until an agent's next action
+        self._goal_tuples: list[tuple[float, float]] = []
+        self._rows_for: tuple[list[str], list[str]] | None = None  # what _table_rows was found for
+        self._table_rows = np.zeros(0, dtype=np.int64)
         self.steps = 0
         self.publish = publish
         self.daemon = (
@@ -191,9 +195,10 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             gx, gy, _ = self._free_pose(taken)
             self._goal[i] = (gx, gy)
             taken.append((gx, gy))
+        self._goal_tuples = [(float(x), float(y)) for x, y in self._goal.tolist()]
         self._command[:] = 0.0
         everyone = np.arange(len(self.possible_agents))
-        self._advance(everyone)
+        self._take_scans(self._advance(everyone))
         return not bool(np.any(collided_many(self._scan, self._footprint)))
 
     def _free_pose(self, taken: list[tuple[float, float]]) -> tuple[float, float, float]:
@@ -229,18 +234,30 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             self._command[[self._index[a] for a in names]] = commands
         agents = self.agents
         live = np.array([self._index[a] for a in agents], dtype=np.int64)
-        self._advance(live)
+        snaps = self._advance(live)
         self.steps += 1
-        obs, distance = self._look(live)
+        # first what needs no scan, while the lidar thread casts the step's last scans
+        pose, goal = self._pose[live], self._goal[live]
+        distance = np.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
         arrived = distance < GOAL_RADIUS
-        crashed = collided_many(self._scan[live], self._footprint)
+        goals = self._goal_tuples
+        infos = [
+            {"pose": (p[0], p[1], p[2]), "goal": goals[i], "distance": x, "arrived": a}
+            for p, i, x, a in zip(pose.tolist(), live.tolist(), distance.tolist(), arrived.tolist(), strict=True)
+        ]
+        self._take_scans(snaps)
+        scans = self._scan[live]
+        obs = observe_many(pose, self._velocity[live], goal, scans, self.beams,
+                           self.sim.config.lidar.range_max, self._low, self._high)  # fmt: skip
+        crashed = collided_many(scans, self._footprint)
+        for info, c in zip(infos, crashed.tolist(), strict=True):
+            info["collided"] = c
         reward = PROGRESS_REWARD * (self._distance[live] - distance)
         reward += np.where(arrived, ARRIVAL_REWARD, np.where(crashed, COLLISION_REWARD, 0.0))
         self._distance[live] = distance
         done = arrived | crashed
         out_of_time = ~done & (self.steps >= self.max_steps)
         done_l, late_l = done.tolist(), out_of_time.tolist()
-        infos = self._infos(live, distance, arrived.tolist(), crashed.tolist())
         result = (
             dict(zip(agents, obs, strict=True)),
             dict(zip(agents, reward.tolist(), strict=True)),
@@ -277,8 +294,10 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             self.daemon = self.remote = None
         self.sim.close()
 
-    def _advance(self, live: npt.NDArray[np.int64]) -> None:
-        """Hold the agents' commands for one lidar period; keep their scans, poses and velocities."""
+    def _advance(self, live: npt.NDArray[np.int64]) -> list[TickSnapshot]:
+        """Hold the agents' commands for one lidar period; keep their poses and velocities, and
+        their scans remotely. In process the ticks' snapshots come back, their scans perhaps
+        still being cast: :meth:`_take_scans` keeps them."""
         names = [self.possible_agents[i] for i in live.tolist()]
         if self.remote is not None:
             reply = self.remote.step(
@@ -290,19 +309,26 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             self._scan[rows] = seen.ranges
             self._pose[rows] = seen.odom[:, :3]
             self._velocity[rows] = seen.odom[:, [3, 5]]
-            return
+            return []
         sim, t = self.sim, self.sim.robots
-        table_rows = np.array([t.row_of(a) for a in names], dtype=np.int64)
+        if self._rows_for != (t.namespaces, names):  # the table's rows move only with a spawn or delete
+            self._table_rows = np.array([t.row_of(a) for a in names], dtype=np.int64)
+            self._rows_for = (t.namespaces, names)
+        table_rows = self._table_rows
         v, w = self._command[live, 0], self._command[live, 1]
         snaps = []
         for _ in range(TICKS_A_STEP):
             sim.command_rows(table_rows, v, w)
             snaps.append(sim.step())
-        for snap in snaps:  # read once all ticks ran: the lidar thread casts beside the physics
-            if snap.scan_namespaces:
-                self._scan[[self._index[ns] for ns in snap.scan_namespaces]] = snap.scans
         self._pose[live] = np.stack([t.x[table_rows], t.y[table_rows], t.yaw[table_rows]], axis=1)
         self._velocity[live] = np.stack([t.vx[table_rows], t.wz[table_rows]], axis=1)
+        return snaps
+
+    def _take_scans(self, snaps: list[TickSnapshot]) -> None:
+        """Keep the scans of these ticks (waiting for the lidar thread if it is still casting)."""
+        for snap in snaps:
+            if snap.scan_namespaces:
+                self._scan[[self._index[ns] for ns in snap.scan_namespaces]] = snap.scans
 
     def _look(self, live: npt.NDArray[np.int64]) -> tuple[F32, npt.NDArray[np.float64]]:
         """The live agents' observations, and their distances to their goals."""

@@ -53,6 +53,7 @@ class Physics:
             s.friction = 0.0
         self.space.add(*shapes)
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
+        self._rid_of_body: dict[int, int] = {}  # pymunk's body id -> robot id (Body.id is slow to read)
         self._order_dirty = True  # a robot was added or removed since the rows were computed
         self._rows_cache: tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]] = (
             np.zeros(0, dtype=np.int64),
@@ -121,10 +122,12 @@ class Physics:
         body.angle = yaw
         self.space.reindex_shapes_for_body(body)
         self._bodies[rid] = body
+        self._rid_of_body[body.id] = rid
         self._order_dirty = True
 
     def remove_robot(self, rid: int) -> None:
         body = self._bodies.pop(rid)
+        del self._rid_of_body[body.id]
         self.space.remove(body, *body.shapes)
         self._order_dirty = True
 
@@ -148,9 +151,9 @@ class Physics:
             buf.clear()
             pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.BODY_ID, buf)
             ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
-            row_of_rid = {int(rid): row for row, rid in enumerate(rids)}
-            row_of_body = {b.id: row_of_rid.get(rid, -1) for rid, b in self._bodies.items()}
-            rows = np.array([row_of_body.get(int(i), -1) for i in ids], dtype=np.int64)
+            row_of_rid = {rid: row for row, rid in enumerate(rids.tolist())}
+            rid_of_body = self._rid_of_body
+            rows = np.array([row_of_rid.get(rid_of_body.get(i, -1), -1) for i in ids.tolist()], dtype=np.int64)
             self._rows_cache = (rows, rows >= 0)
             self._rows_n = len(rids)
             self._n_iter = len(ids)
