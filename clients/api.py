@@ -125,6 +125,29 @@ class FleetClient:
 
     # -- queries --------------------------------------------------------------------------
 
+    def _query_all(self, key: str, request: object | None, reply_type: type[T]) -> list[T]:
+        """Every daemon's answer (a fleet shared by several daemons: docs/scale-out.md); the
+        first error when none answered well, as :meth:`_query` raises it."""
+        found: list[T] = []
+        error: FleetError | None = None
+        payload = encode(request) if request is not None else None
+        replies = self.session.get(
+            f"{key}?format=msgpack",
+            payload=payload,
+            encoding="application/msgpack",
+            timeout=self.timeout,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,  # every daemon's reply (they share the key)
+        )
+        for reply in replies:
+            if reply.ok is not None:
+                found.append(decode(reply.ok.payload.to_bytes(), reply_type))
+            elif error is None:
+                error = self._error(key, reply, self.timeout)
+        if found:
+            return found
+        raise error if error is not None else self._unavailable(key)
+
     def _query(self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None) -> T:
         deadline = self.timeout if timeout is None else timeout
         payload = encode(request) if request is not None else None
@@ -133,24 +156,32 @@ class FleetClient:
             payload=payload,
             encoding="application/msgpack",
             timeout=deadline,
+            # every daemon that declares the key hears it (in a shared fleet the one that owns
+            # the answer replies; zenoh's default would pick one of them)
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,  # every daemon's reply (they share the key)
         )
         for reply in replies:
             if reply.ok is not None:
                 return decode(reply.ok.payload.to_bytes(), reply_type)
-            err = reply.err
-            assert err is not None
-            raw = err.payload.to_bytes()
-            if raw == b"Timeout":
-                raise FleetError(
-                    ErrorCode.TIMEOUT,
-                    f"the daemon did not answer {key} within {deadline:g} s",
-                )
-            try:
-                info = decode(raw, ErrorReply)
-            except FleetError:
-                raise FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace")) from None
-            raise FleetError.from_reply(info)
-        raise FleetError(
+            raise self._error(key, reply, deadline)
+        raise self._unavailable(key)
+
+    def _error(self, key: str, reply: zenoh.Reply, deadline: float) -> FleetError:
+        """The error an error reply carries (a timeout, a structured refusal, or garbage)."""
+        err = reply.err
+        assert err is not None
+        raw = err.payload.to_bytes()
+        if raw == b"Timeout":
+            return FleetError(ErrorCode.TIMEOUT, f"the daemon did not answer {key} within {deadline:g} s")
+        try:
+            info = decode(raw, ErrorReply)
+        except FleetError:
+            return FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace"))
+        return FleetError.from_reply(info)
+
+    def _unavailable(self, key: str) -> FleetError:
+        return FleetError(
             ErrorCode.UNAVAILABLE,
             f"no fleetsim daemon answered on {key} via {self.options.endpoints()} "
             + (
@@ -175,11 +206,17 @@ class FleetClient:
         return self._query(self.keys.spawn, req, RobotRecord)
 
     def delete(self, name: str) -> RobotRecord:
-        """Delete a robot by name or namespace; returns its last record."""
-        return self._query(self.keys.delete, DeleteRequest(name=name), RobotRecord)
+        """Delete a robot by name or namespace; returns its last record. (In a shared fleet
+        the robot's daemon answers, and so may the daemon its name is placed on, with
+        not found: the robot's answer wins.)"""
+        return self._query_all(self.keys.delete, DeleteRequest(name=name), RobotRecord)[0]
 
     def robots(self) -> list[RobotRecord]:
-        return self._query(self.keys.robots, None, RobotList).robots
+        """Every robot of the fleet, whichever daemon runs it (each daemon lists its own)."""
+        lists = self._query_all(self.keys.robots, None, RobotList)
+        if len(lists) == 1:
+            return lists[0].robots
+        return sorted((r for rl in lists for r in rl.robots), key=lambda r: r.name)
 
     def robot(self, key: str) -> RobotRecord | None:
         """The record of a robot by name or namespace, or None."""
@@ -188,7 +225,12 @@ class FleetClient:
     def daemons(self) -> list[DaemonInfo]:
         """Every daemon serving this prefix, by id (each answers ``P/daemons`` for itself)."""
         found = []
-        for reply in self.session.get(f"{self.keys.daemons}?format=msgpack", timeout=self.timeout):
+        for reply in self.session.get(
+            f"{self.keys.daemons}?format=msgpack",
+            timeout=self.timeout,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+        ):
             if reply.ok is not None:
                 found.append(decode(reply.ok.payload.to_bytes(), DaemonInfo))
         return sorted(found, key=lambda d: d.id)

@@ -172,6 +172,8 @@ class RobotRecord(msgspec.Struct, kw_only=True):
     footprint: list[tuple[float, float]] = msgspec.field(default_factory=list)
     topics: Topics | None = None
     frames: Frames | None = None
+    #: the id of the daemon that simulates it (``simd --id``)
+    daemon: str = ""
 
 
 class RobotList(msgspec.Struct, kw_only=True):
@@ -189,6 +191,8 @@ class DaemonInfo(msgspec.Struct, kw_only=True):
     zid: str
     #: wall-clock time it started (Unix seconds)
     started: float
+    #: it shares the fleet with other daemons (``simd --join``)
+    shared: bool = False
 
 
 class Bounds(msgspec.Struct, kw_only=True):

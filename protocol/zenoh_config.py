@@ -194,7 +194,7 @@ def add_zenoh_args(parser: argparse.ArgumentParser, *, server: bool, default_mod
 def options_from_args(args: argparse.Namespace, *, server: bool) -> ZenohOptions:
     opts = ZenohOptions.from_args(args)
     if not opts.config_file:
-        if server and not opts.listen:
+        if server and not opts.listen and opts.mode != "client":  # a client connects: it has nothing to listen on
             opts.listen = [DEFAULT_ENDPOINT]
         if not server and not opts.connect:
             opts.connect = [DEFAULT_ENDPOINT]

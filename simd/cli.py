@@ -44,6 +44,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
     p.add_argument(
+        "--join",
+        action="store_true",
+        help="share the prefix with the other --join daemons on the network: each spawn is placed on one of them "
+        "by its name, lists are merged (in progress: robots on different daemons do not see each other yet, "
+        "and each keeps its own clock; docs/scale-out.md)",
+    )
+    p.add_argument(
         "--id",
         default="simd",
         help="this daemon's name in the fleet (its liveliness token P/daemons/ID; fleet daemons lists them; "
@@ -277,25 +284,24 @@ def main(argv: list[str] | None = None) -> int:
         print(f"simd: warning: listening on {', '.join(exposed)} without authentication: anyone who can reach it "
               "can spawn, delete and drive robots and answer in the daemon's place; for a secured fleet see "
               "docs/security.md (fleet-security init)", file=sys.stderr, flush=True)  # fmt: skip
-    from simd.adapters.fleet.presence import Presence, serving
+    from simd.adapters.fleet.presence import Members, Presence, infos, refusal, serving
 
     others = serving(session, keys)
-    if others:
+    why = refusal(others, infos(session, keys) if others else [], args.id, world.name, args.join, keys.prefix)
+    if why is not None:
         session.close()
         if ros_session is not None:
             ros_session.close()
         sim.close()
-        return fail(
-            f"daemon {others[0]!r} already serves prefix {keys.prefix!r} on this network (fleet daemons "
-            f"lists it): run this one with another --prefix; daemons cannot share one fleet yet"
-        )
+        return fail(why)
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver)
     adapter: FleetAdapter | None = None
     presence: Presence | None = None
     ros_adapter = None
     try:
-        adapter = FleetAdapter(session, keys, engine)
-        presence = Presence(session, keys, args.id, world.name)
+        members = Members(session, keys, args.id) if args.join else None
+        adapter = FleetAdapter(session, keys, engine, args.id, members)
+        presence = Presence(session, keys, args.id, world.name, shared=args.join)
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
 
@@ -314,6 +320,8 @@ def main(argv: list[str] | None = None) -> int:
         mode = "lockstep" if args.lockstep else ("paused" if args.paused else f"rtf {args.rtf:g}")
         if through_router:
             where = f"fleet protocol through the ROS router at {router}"
+        elif opts.mode == "client":
+            where = f"connected to {opts.endpoints()}"
         else:
             where = f"listening on {opts.endpoints()}"
         print(f"simd: world {world.name} ({world.source}), {mode}, seed {args.seed}; {where}; prefix '{keys.prefix}'; "

@@ -52,7 +52,7 @@ def frames(ns: str) -> Frames:
     return Frames(odom=f"{ns}/odom", base_footprint=f"{ns}/base_footprint", base_scan=f"{ns}/base_scan")
 
 
-def robot_record(state: RobotState, keys: Keys) -> RobotRecord:
+def robot_record(state: RobotState, keys: Keys, daemon: str = "") -> RobotRecord:
     ns = state.namespace
     sx, sy, syaw = state.spawn_pose
     return RobotRecord(
@@ -67,6 +67,7 @@ def robot_record(state: RobotState, keys: Keys) -> RobotRecord:
         footprint=[(float(px), float(py)) for px, py in state.model.outline],
         topics=Topics(cmd_vel=keys.cmd_vel(ns), odom=keys.odom(ns), scan=keys.scan(ns), alive=keys.alive(ns)),
         frames=frames(ns),
+        daemon=daemon,
     )
 
 

@@ -23,12 +23,22 @@ from typing import Any
 import zenoh
 
 from protocol.codec import encode
-from protocol.control import Clock, Observation, PackedObservations, Request, RobotList, StepReply
-from protocol.errors import FleetError
+from protocol.control import (
+    Clock,
+    DeleteRequest,
+    Observation,
+    PackedObservations,
+    Request,
+    RobotList,
+    SpawnRequest,
+    StepReply,
+)
+from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
 from protocol.messages import Time
 from simd.adapters.fleet import requests
 from simd.adapters.fleet.commands import CommandIntake
+from simd.adapters.fleet.presence import Members
 from simd.adapters.fleet.publisher import Publisher
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.core.snapshot import RobotState, TickSnapshot
@@ -45,9 +55,16 @@ log = logging.getLogger(__name__)
 class FleetAdapter:
     """Serves one engine on one zenoh session under one key prefix."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, engine: Engine) -> None:
+    def __init__(
+        self, session: zenoh.Session, keys: Keys, engine: Engine, daemon_id: str = "", members: Members | None = None
+    ) -> None:
         self.keys = keys
         self.engine = engine
+        self.daemon_id = daemon_id
+        #: a fleet shared with other daemons (simd --join): spawns placed by name, deletes
+        #: answered by the robot's daemon (docs/scale-out.md)
+        self.members = members
+        self._own: set[str] = set()  # names and namespaces of this daemon's robots (sim thread writes)
         spec = engine.sim.config.lidar
         self.spec = spec
         self._world_info = convert.world_info(engine.sim.world)
@@ -60,6 +77,9 @@ class FleetAdapter:
     # -- requests (zenoh threads) ---------------------------------------------------------------
 
     def _submit(self, request: Request, pending: requests.Pending) -> None:
+        if self.members is not None and not self._ours(request, pending):
+            return
+
         def send(result: Result | FleetError) -> None:
             if isinstance(result, FleetError):
                 pending.error(result)
@@ -71,14 +91,42 @@ class FleetAdapter:
         except FleetError as e:  # busy: refused on the spot, never queued behind the flood
             pending.error(e)
 
+    def _ours(self, request: Request, pending: requests.Pending) -> bool:
+        """In a shared fleet, whether this daemon answers: a spawn if the name is placed here
+        (and is nobody's elsewhere), a delete if the robot is here or, when it is nowhere, if
+        its name would be placed here (that one daemon says not found). Others let it pass."""
+        assert self.members is not None
+        if isinstance(request, SpawnRequest):
+            if self.members.owner(request.name) != self.daemon_id:
+                pending.skip()
+                return False
+            for key in {request.name, request.namespace or request.name}:
+                if key not in self._own and self.members.alive(key):
+                    pending.error(
+                        FleetError(
+                            ErrorCode.ALREADY_EXISTS, f"Entity [{key}] already exists (on another daemon)", "name"
+                        )
+                    )
+                    return False
+        elif isinstance(request, DeleteRequest) and not self._answers_delete(request.name):
+            pending.skip()
+            return False
+        return True
+
+    def _answers_delete(self, key: str) -> bool:
+        assert self.members is not None
+        if key in self._own:
+            return True
+        return not self.members.alive(key) and self.members.owner(key) == self.daemon_id
+
     def _message(self, result: Result) -> object:
         """The protocol's message for an engine answer."""
         if isinstance(result, RobotState):
-            return convert.robot_record(result, self.keys)
+            return convert.robot_record(result, self.keys, self.daemon_id)
         if isinstance(result, EngineRobotList):
             return RobotList(
                 stamp=Time.from_seconds(result.time),
-                robots=[convert.robot_record(s, self.keys) for s in result.robots],
+                robots=[convert.robot_record(s, self.keys, self.daemon_id) for s in result.robots],
             )
         if isinstance(result, WorldGeometry):
             return self._world_info
@@ -120,6 +168,10 @@ class FleetAdapter:
 
     def on_event(self, event: Event) -> None:
         if isinstance(event, Spawned):
+            self._own |= {event.robot.name, event.robot.namespace}
+        elif isinstance(event, Deleted):
+            self._own -= {event.robot.name, event.robot.namespace}
+        if isinstance(event, Spawned):
             self.outbox.put(partial(self.publisher.add_robot, event.robot, event.time))
         elif isinstance(event, Deleted):
             self.outbox.put(partial(self.publisher.remove_robot, event.robot.namespace))
@@ -134,6 +186,8 @@ class FleetAdapter:
         return self.commands.dropped
 
     def close(self) -> None:
+        if self.members is not None:
+            self.members.close()
         undeclare_all(self._queryables)
         self.commands.close()
         self.outbox.close()

@@ -13,12 +13,16 @@ from __future__ import annotations
 
 import os
 import socket
+import threading
 import time
 from typing import Any
 
 import zenoh
 
+from protocol import placement
+from protocol.codec import decode
 from protocol.control import DaemonInfo
+from protocol.errors import FleetError
 from protocol.keys import Keys
 from simd.adapters.fleet.requests import Pending, reply_format
 
@@ -36,13 +40,55 @@ def serving(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list
     return sorted(found)
 
 
+def infos(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list[DaemonInfo]:
+    """What the daemons serving ``keys``' prefix say of themselves (``P/daemons``)."""
+    found = []
+    for reply in session.get(
+        f"{keys.daemons}?format=msgpack",
+        timeout=timeout,
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+    ):
+        if reply.ok is not None:
+            try:
+                found.append(decode(reply.ok.payload.to_bytes(), DaemonInfo))
+            except FleetError:
+                continue  # not a daemon of ours
+    return found
+
+
+def refusal(
+    others: list[str], infos_there: list[DaemonInfo], daemon_id: str, world: str, join: bool, prefix: str
+) -> str | None:
+    """Why this daemon may not serve ``prefix`` beside the daemons ``others`` (None: it may)."""
+    if not others:
+        return None
+    if not join:
+        return (
+            f"daemon {others[0]!r} already serves prefix {prefix!r} on this network (fleet daemons lists it): "
+            "run this one with another --prefix, or start every daemon of one fleet with --join"
+        )
+    if daemon_id in others:
+        return f"a daemon with --id {daemon_id!r} already serves prefix {prefix!r}: give this one another --id"
+    for info in sorted(infos_there, key=lambda i: i.id):
+        if not info.shared:
+            return (
+                f"daemon {info.id!r} serves prefix {prefix!r} without --join: a fleet is shared only when "
+                "every daemon of it is started with --join"
+            )
+        if info.world != world:
+            return f"the fleet at prefix {prefix!r} runs world {info.world!r} (daemon {info.id!r}), this one {world!r}"
+    return None
+
+
 class Presence:
     """The daemon's token and its answer on ``P/daemons``, for as long as it runs."""
 
-    def __init__(self, session: zenoh.Session, keys: Keys, daemon_id: str, world: str) -> None:
+    def __init__(self, session: zenoh.Session, keys: Keys, daemon_id: str, world: str, shared: bool = False) -> None:
         self.info = DaemonInfo(
             id=daemon_id,
             world=world,
+            shared=shared,
             host=socket.gethostname(),
             pid=os.getpid(),
             zid=str(session.zid()),
@@ -60,3 +106,55 @@ class Presence:
     def close(self) -> None:
         self._queryable.undeclare()
         self._token.undeclare()
+
+
+class Members:
+    """The live daemons of a shared fleet and the robots alive anywhere in it, from liveliness
+    (``P/daemons/*`` and ``P/*/alive``, with history so that those already there count): what
+    a daemon needs to place spawns and keep names unique across daemons."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, daemon_id: str) -> None:
+        self.daemon_id = daemon_id
+        self._lock = threading.Lock()
+        self._daemons: set[str] = {daemon_id}
+        self._alive: set[str] = set()
+        self._head_daemon, self._keys = keys.daemon(""), keys
+        self._subs: list[Any] = [
+            session.liveliness().declare_subscriber(keys.daemon("*"), self._on_daemon, history=True),
+            session.liveliness().declare_subscriber(keys.alive("*"), self._on_robot, history=True),
+        ]
+
+    def _on_daemon(self, sample: zenoh.Sample) -> None:
+        daemon_id = str(sample.key_expr)[len(self._head_daemon) :]
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._daemons.add(daemon_id)
+            elif daemon_id != self.daemon_id:
+                self._daemons.discard(daemon_id)
+
+    def _on_robot(self, sample: zenoh.Sample) -> None:
+        ns = self._keys.namespace_of(str(sample.key_expr))
+        if ns is None:
+            return
+        with self._lock:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._alive.add(ns)
+            else:
+                self._alive.discard(ns)
+
+    def daemons(self) -> list[str]:
+        with self._lock:
+            return sorted(self._daemons)
+
+    def owner(self, name: str) -> str:
+        """The daemon that places ``name`` among the live ones (protocol/placement.py)."""
+        return placement.owner(name, self.daemons())
+
+    def alive(self, namespace: str) -> bool:
+        """Whether a robot with this namespace lives anywhere in the fleet."""
+        with self._lock:
+            return namespace in self._alive
+
+    def close(self) -> None:
+        for s in self._subs:
+            s.undeclare()

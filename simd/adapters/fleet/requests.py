@@ -75,6 +75,10 @@ class Pending:
         finally:
             self.query.drop()
 
+    def skip(self) -> None:
+        """Leave the query to another daemon: no reply from this one."""
+        self.query.drop()
+
     def error(self, err: FleetError) -> None:
         try:
             self.query.reply_err(encode(err.to_reply(), self.fmt), encoding=media_type(self.fmt))

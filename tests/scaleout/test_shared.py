@@ -1,0 +1,88 @@
+"""Two daemons share one fleet through a router (simd --join): spawns placed by name on one of
+them, one list, deletes answered by the robot's daemon, refusals, and a daemon's death. All
+real processes on loopback."""
+
+from __future__ import annotations
+
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from clients import FleetClient, wait_until
+from protocol import FleetError
+from protocol.placement import owner
+from tests.conftest import ROOT, simd_command
+from tests.scaleout.test_router import _start, _stop, router  # noqa: F401  (the router fixture)
+
+Router = tuple[str, subprocess.Popen[str], Path]
+
+
+@pytest.fixture
+def fleet(router: Router, tmp_path: Path) -> Iterator[tuple[str, dict[str, subprocess.Popen[str]]]]:  # noqa: F811
+    endpoint = router[0]
+    daemons = {
+        d: _start(
+            simd_command("-m", "client", "-e", endpoint, "--join", "--id", d, "--world", "empty"),
+            tmp_path / f"simd-{d}.log",
+        )
+        for d in ("a", "b")
+    }
+    try:
+        with FleetClient(endpoint, timeout=3.0) as c:
+            assert wait_until(lambda: [d.id for d in c.daemons()] == ["a", "b"], 20.0), [
+                (tmp_path / f"simd-{d}.log").read_text() for d in daemons
+            ]
+        yield endpoint, daemons
+    finally:
+        for p in daemons.values():
+            _stop(p)
+
+
+def test_spawns_are_placed_by_name_and_the_fleet_is_one_list(
+    fleet: tuple[str, dict[str, subprocess.Popen[str]]], tmp_path: Path
+) -> None:
+    endpoint, daemons = fleet
+    names = [f"tb3_{i}" for i in range(8)]
+    placed = {n: owner(n, ["a", "b"]) for n in names}
+    assert set(placed.values()) == {"a", "b"}  # these eight land on both
+    with FleetClient(endpoint, timeout=5.0) as c:
+        for i, n in enumerate(names):
+            record = c.spawn(n, float(i), 0.0)
+            assert record.daemon == placed[n], n  # the reply says which daemon runs it
+        listed = c.robots()
+        assert [r.name for r in listed] == sorted(names)
+        assert {r.name: r.daemon for r in listed} == placed
+        with pytest.raises(FleetError, match="already exists") as e:
+            c.spawn("tb3_3", 0.0, 5.0)
+        assert e.value.code.value == "already_exists"
+        on_b = next(n for n in names if placed[n] == "b")
+        assert c.delete(on_b).daemon == "b"
+        with pytest.raises(FleetError) as missing:
+            c.delete("ghost")
+        assert missing.value.code.value == "not_found"
+        assert on_b not in [r.name for r in c.robots()]
+        _stop(daemons["b"])  # a daemon dies: its robots leave the fleet, its names go to the survivor
+        survivors = sorted(n for n in names if placed[n] == "a")
+        assert wait_until(lambda: [d.id for d in c.daemons()] == ["a"], 15.0)
+        assert [r.name for r in c.robots()] == survivors
+        assert c.spawn(on_b, 20.0, 0.0).daemon == "a"
+
+
+def test_a_daemon_that_cannot_join_is_refused(fleet: tuple[str, dict[str, subprocess.Popen[str]]]) -> None:
+    endpoint, _ = fleet
+    cases = [
+        (["--join", "--id", "a", "--world", "empty"], "a daemon with --id 'a' already serves prefix 'fleet'"),
+        (["--join", "--id", "c"], "runs world 'empty' (daemon 'a'), this one 'turtlebot3_world'"),
+        (["--id", "c", "--world", "empty"], "start every daemon of one fleet with --join"),
+    ]
+    for args, words in cases:
+        r = subprocess.run(
+            simd_command("-m", "client", "-e", endpoint, *args), cwd=ROOT, capture_output=True, text=True, timeout=60
+        )
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and words in lines[0], r.stderr
+    with FleetClient(endpoint, timeout=3.0) as c:
+        assert [d.id for d in c.daemons()] == ["a", "b"]  # the fleet is as it was
+        assert all(d.shared for d in c.daemons())
