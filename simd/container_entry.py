@@ -157,9 +157,20 @@ def build_argv(argv: Sequence[str], env: Mapping[str, str]) -> list[str]:
     out = args_from_env(parser, env, skip=given)
     has_listen = "listen" in given or "--listen" in out
     has_config = "config" in given or "--config" in out
-    if not has_listen and not has_config:
-        out = ["--listen", DEFAULT_LISTEN, *out]
+    if not has_listen and not has_config and _mode(parser, [*out, *argv]) != "client":
+        out = ["--listen", DEFAULT_LISTEN, *out]  # a client of a router listens on nothing
     return [*out, *argv]
+
+
+def _mode(parser: argparse.ArgumentParser, argv: list[str]) -> str | None:
+    """The zenoh mode these flags ask for (None when they do not parse: simd says why)."""
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            args, _ = parser.parse_known_args(argv)
+    except SystemExit:
+        return None
+    mode: str | None = args.mode
+    return mode
 
 
 def _flag_of(name: str) -> str:

@@ -233,6 +233,9 @@ def test_env_becomes_flags_and_command_line_wins() -> None:
     # nothing said: every interface of the container; a config file: its own endpoints
     assert container_entry.build_argv([], {})[:2] == ["--listen", "tcp/0.0.0.0:7447"]
     assert "--listen" not in container_entry.build_argv(["-c", "z.json5"], {})
+    # a daemon that is a client of a router (docker/compose.fleet.yaml) listens on nothing
+    assert "--listen" not in container_entry.build_argv(["-m", "client", "-e", "tcp/router:7447"], {})
+    assert "--listen" not in container_entry.build_argv([], {"SIMD_MODE": "client", "SIMD_CONNECT": "tcp/r:1"})
     with pytest.raises(container_entry.EnvError):
         container_entry.build_argv([], {"SIMD_PAUSED": "maybe"})
 
