@@ -47,8 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--join",
         action="store_true",
         help="share the prefix with the other --join daemons on the network: each spawn is placed on one of them "
-        "by its name, lists are merged (in progress: robots on different daemons do not see each other yet, "
-        "and each keeps its own clock; docs/scale-out.md)",
+        "by its name, lists are merged, robots on other daemons are seen and felt here (in progress: each "
+        "daemon keeps its own clock; docs/scale-out.md)",
     )
     p.add_argument(
         "--id",
@@ -297,10 +297,16 @@ def main(argv: list[str] | None = None) -> int:
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver)
     adapter: FleetAdapter | None = None
     presence: Presence | None = None
+    ghost_feed = None
     ros_adapter = None
     try:
         members = Members(session, keys, args.id) if args.join else None
         adapter = FleetAdapter(session, keys, engine, args.id, members)
+        if members is not None:
+            from simd.adapters.fleet.ghosts import GhostFeed
+
+            ghost_feed = GhostFeed(session, keys, members, adapter.own_namespaces)
+            engine.ghost_source = ghost_feed.take
         presence = Presence(session, keys, args.id, world.name, shared=args.join)
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
@@ -342,6 +348,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         engine.run()
     finally:
+        if ghost_feed is not None:
+            ghost_feed.close()
         if presence is not None:
             presence.close()
         if ros_adapter is not None:

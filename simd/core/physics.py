@@ -54,6 +54,7 @@ class Physics:
         self.space.add(*shapes)
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
         self._rid_of_body: dict[int, int] = {}  # pymunk's body id -> robot id (Body.id is slow to read)
+        self._ghosts: dict[str, pymunk.Body] = {}  # robots simulated elsewhere, by namespace
         self._order_dirty = True  # a robot was added or removed since the rows were computed
         self._rows_cache: tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]] = (
             np.zeros(0, dtype=np.int64),
@@ -123,6 +124,33 @@ class Physics:
         self.space.reindex_shapes_for_body(body)
         self._bodies[rid] = body
         self._rid_of_body[body.id] = rid
+        self._order_dirty = True
+
+    def set_ghost(self, key: str, model: RobotModel, x: float, y: float, yaw: float) -> None:
+        """Place (adding it first if new) a robot simulated elsewhere: a kinematic body with the
+        model's footprint, which this world's robots bump into but cannot push."""
+        body = self._ghosts.get(key)
+        if body is None:
+            body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+            shapes = []
+            for x0, x1, y0, y1 in model.collision_boxes():
+                s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+                s.friction = 0.0
+                s.collision_type = _ROBOT
+                shapes.append(s)
+            body.position = (x, y)
+            body.angle = yaw
+            self.space.add(body, *shapes)
+            self._ghosts[key] = body
+            self._order_dirty = True
+        else:
+            body.position = (x, y)
+            body.angle = yaw
+        self.space.reindex_shapes_for_body(body)
+
+    def remove_ghost(self, key: str) -> None:
+        body = self._ghosts.pop(key)
+        self.space.remove(body, *body.shapes)
         self._order_dirty = True
 
     def remove_robot(self, rid: int) -> None:

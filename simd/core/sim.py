@@ -92,6 +92,10 @@ class Simulation:
         self._phase_load = [0] * self.config.scan_every
         self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
         self._last_scans: Future[F32] | None = None
+        #: robots simulated elsewhere (another daemon of a shared fleet), seen and felt here:
+        #: namespace -> (model, x, y, yaw); their outlines join the lidar's robot outlines
+        self.ghosts: dict[str, tuple[RobotModel, float, float, float]] = {}
+        self._ghost_columns: tuple[F64, F64, F64, I64, F64] | None = None
 
     # -- queries ----------------------------------------------------------------------
 
@@ -299,6 +303,42 @@ class Simulation:
             a[:] = 0.0
         t.last_cmd[:] = 0
 
+    # -- robots simulated elsewhere -------------------------------------------------------
+
+    def set_ghosts(self, ghosts: Mapping[str, tuple[str, float, float, float]]) -> None:
+        """The robots of the other daemons of a shared fleet, at their latest known poses
+        (namespace -> (model name, x, y, yaw)): kinematic bodies this world's robots bump into,
+        outlines its lidar sees. Ghosts not named again leave; unknown models are left out."""
+        for key in [k for k in self.ghosts if k not in ghosts]:
+            del self.ghosts[key]
+            self.physics.remove_ghost(key)
+        for key, (model_name, x, y, yaw) in ghosts.items():
+            model = MODELS.get(model_name)
+            if model is None or not (math.isfinite(x) and math.isfinite(y) and math.isfinite(yaw)):
+                continue
+            self.ghosts[key] = (model, x, y, yaw)
+            self.physics.set_ghost(key, model, x, y, yaw)
+        if not self.ghosts:
+            self._ghost_columns = None
+            return
+        rows = list(self.ghosts.values())
+        self._ghost_columns = (
+            np.array([g[1] for g in rows]),
+            np.array([g[2] for g in rows]),
+            np.array([g[3] for g in rows]),
+            -1 - np.arange(len(rows), dtype=np.int64),  # never a robot id of this world
+            np.stack([g[0].outline for g in rows]),
+        )
+
+    def _with_ghosts(self) -> tuple[F64, F64, F64, I64, F64]:
+        """The robots' columns the lidar sees: this world's robots, then the ghosts."""
+        t = self.robots
+        if self._ghost_columns is None:
+            return t.x, t.y, t.yaw, t.rid, t.outline
+        gx, gy, gyaw, grid, gout = self._ghost_columns
+        return (np.concatenate([t.x, gx]), np.concatenate([t.y, gy]), np.concatenate([t.yaw, gyaw]),
+                np.concatenate([t.rid, grid]), np.concatenate([t.outline, gout]))  # fmt: skip
+
     # -- the tick -------------------------------------------------------------------------
 
     def step(self) -> TickSnapshot:
@@ -327,9 +367,9 @@ class Simulation:
         if len(due) == 0:
             scans = np.zeros((0, cfg.lidar.samples), dtype=np.float32)
         elif self._lidar is None:
-            scans = self._scan(due, t.x, t.y, t.yaw, t.rid, t.outline, t.lidar_off)
+            scans = self._scan(due, *self._with_ghosts(), t.lidar_off)
         else:  # the columns are replaced, never written, from tick to tick: safe to read there
-            scans = self._lidar.submit(self._scan, due, t.x, t.y, t.yaw, t.rid, t.outline, t.lidar_off)
+            scans = self._lidar.submit(self._scan, due, *self._with_ghosts(), t.lidar_off)
             self._last_scans = scans
         return TickSnapshot(
             tick=self.tick,

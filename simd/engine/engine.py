@@ -16,7 +16,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -151,6 +151,9 @@ class Engine:
         self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}  # namespace -> (tick, row) of its scan
         self._last_snap: TickSnapshot | None = None
         self._rtf = RtfMeter()
+        #: robots simulated elsewhere (other daemons of a shared fleet): called each tick, it
+        #: gives their poses when they changed (namespace -> (model, x, y, yaw)), else None
+        self.ghost_source: Callable[[], Mapping[str, tuple[str, float, float, float]] | None] | None = None
         self._saver = saver  # --state: the fleet written as it runs
         self._next_save = math.inf
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
@@ -283,6 +286,10 @@ class Engine:
         sim = self.sim
         sim.command_many(self._gather_commands())
         self._pending_commands = {}
+        if self.ghost_source is not None:
+            ghosts = self.ghost_source()
+            if ghosts is not None:
+                sim.set_ghosts(ghosts)
         if self._steps:  # a step's own commands hold for all of its ticks
             self._steps[0].apply(sim)
         snap = sim.step()

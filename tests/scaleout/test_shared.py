@@ -24,7 +24,7 @@ def fleet(router: Router, tmp_path: Path) -> Iterator[tuple[str, dict[str, subpr
     endpoint = router[0]
     daemons = {
         d: _start(
-            simd_command("-m", "client", "-e", endpoint, "--join", "--id", d, "--world", "empty"),
+            simd_command("-m", "client", "-e", endpoint, "--join", "--id", d, "--world", "empty", "--no-noise"),
             tmp_path / f"simd-{d}.log",
         )
         for d in ("a", "b")
@@ -86,3 +86,24 @@ def test_a_daemon_that_cannot_join_is_refused(fleet: tuple[str, dict[str, subpro
     with FleetClient(endpoint, timeout=3.0) as c:
         assert [d.id for d in c.daemons()] == ["a", "b"]  # the fleet is as it was
         assert all(d.shared for d in c.daemons())
+
+
+def test_robots_on_different_daemons_see_each_other(fleet: tuple[str, dict[str, subprocess.Popen[str]]]) -> None:
+    endpoint, _ = fleet
+    names = [f"r{i}" for i in range(20)]
+    on_a = next(n for n in names if owner(n, ["a", "b"]) == "a")
+    on_b = next(n for n in names if owner(n, ["a", "b"]) == "b")
+    with FleetClient(endpoint, timeout=5.0) as c:
+        assert c.spawn(on_a, 0.0, 0.0, 0.0).daemon == "a"
+        assert c.spawn(on_b, 1.0, 0.0, 3.14159).daemon == "b"  # a metre ahead, facing it
+
+        def ahead(ns: str) -> float:
+            scan = c.latest_scan(ns)
+            return float(scan.ranges_array()[0]) if scan is not None else float("inf")
+
+        # each sees the other, simulated on the other daemon, about a metre ahead (the empty
+        # floor has nothing else): from the pose that daemon last published
+        assert wait_until(lambda: 0.85 < ahead(on_a) < 1.05, 10.0), ahead(on_a)
+        assert wait_until(lambda: 0.85 < ahead(on_b) < 1.05, 10.0), ahead(on_b)
+        c.delete(on_b)  # gone from the fleet: gone from a's scans
+        assert wait_until(lambda: ahead(on_a) == float("inf"), 10.0), ahead(on_a)

@@ -91,6 +91,10 @@ class FleetAdapter:
         except FleetError as e:  # busy: refused on the spot, never queued behind the flood
             pending.error(e)
 
+    def own_namespaces(self) -> set[str]:
+        """The names and namespaces of this daemon's robots (a copy, for other threads)."""
+        return set(self._own)
+
     def _ours(self, request: Request, pending: requests.Pending) -> bool:
         """In a shared fleet, whether this daemon answers: a spawn if the name is placed here
         (and is nobody's elsewhere), a delete if the robot is here or, when it is nowhere, if
@@ -167,10 +171,11 @@ class FleetAdapter:
         self.outbox.put(partial(self.publisher.publish_tick, snapshot))
 
     def on_event(self, event: Event) -> None:
+        # a new set each time, never changed in place: other threads copy it (own_namespaces)
         if isinstance(event, Spawned):
-            self._own |= {event.robot.name, event.robot.namespace}
+            self._own = self._own | {event.robot.name, event.robot.namespace}
         elif isinstance(event, Deleted):
-            self._own -= {event.robot.name, event.robot.namespace}
+            self._own = self._own - {event.robot.name, event.robot.namespace}
         if isinstance(event, Spawned):
             self.outbox.put(partial(self.publisher.add_robot, event.robot, event.time))
         elif isinstance(event, Deleted):
