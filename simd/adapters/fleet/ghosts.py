@@ -40,6 +40,7 @@ class GhostFeed:
         self._poses: dict[str, tuple[float, float, float]] = {}
         self._models: dict[str, str] = {}
         self._changed = False
+        self._seen_version = -1
         self._decoder = msgspec.msgpack.Decoder(FleetOdometry)
         self._sub: Any = session.declare_subscriber(keys.fleet_odom, self._on_odometry)
         self._stop = threading.Event()
@@ -84,9 +85,10 @@ class GhostFeed:
     def take(self) -> Ghosts | None:
         """The ghosts now (namespace -> (model, x, y, yaw)), or None if nothing changed."""
         with self._lock:
-            if not self._changed:
-                return None
+            if not self._changed and self._members.version == self._seen_version:
+                return None  # no pose, model, arrival or departure since the last tick
             self._changed = False
+            self._seen_version = self._members.version
             for ns in [ns for ns in self._poses if not self._members.alive(ns)]:
                 del self._poses[ns]  # it left the fleet (deleted, or its daemon died)
             return {ns: (self._models[ns], *pose) for ns, pose in self._poses.items() if ns in self._models}

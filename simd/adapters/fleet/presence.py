@@ -118,6 +118,7 @@ class Members:
         self._lock = threading.Lock()
         self._daemons: set[str] = {daemon_id}
         self._alive: set[str] = set()
+        self.version = 0  # counts the robots' arrivals and departures
         self._head_daemon, self._keys = keys.daemon(""), keys
         self._subs: list[Any] = [
             session.liveliness().declare_subscriber(keys.daemon("*"), self._on_daemon, history=True),
@@ -141,6 +142,7 @@ class Members:
                 self._alive.add(ns)
             else:
                 self._alive.discard(ns)
+            self.version += 1  # readers that cache what is alive look again
 
     def daemons(self) -> list[str]:
         with self._lock:
