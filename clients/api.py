@@ -125,17 +125,20 @@ class FleetClient:
 
     # -- queries --------------------------------------------------------------------------
 
-    def _query_all(self, key: str, request: object | None, reply_type: type[T]) -> list[T]:
-        """Every daemon's answer (a fleet shared by several daemons: docs/scale-out.md); the
-        first error when none answered well, as :meth:`_query` raises it."""
+    def _query_all(
+        self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None
+    ) -> list[T]:
+        """Every daemon's answer (a fleet shared by several daemons: docs/scale-out.md), once
+        all have answered; the first error when none answered well, as :meth:`_query` raises it."""
         found: list[T] = []
         error: FleetError | None = None
         payload = encode(request) if request is not None else None
+        deadline = self.timeout if timeout is None else timeout
         replies = self.session.get(
             f"{key}?format=msgpack",
             payload=payload,
             encoding="application/msgpack",
-            timeout=self.timeout,
+            timeout=deadline,
             target=zenoh.QueryTarget.ALL,
             consolidation=zenoh.ConsolidationMode.NONE,  # every daemon's reply (they share the key)
         )
@@ -143,7 +146,7 @@ class FleetClient:
             if reply.ok is not None:
                 found.append(decode(reply.ok.payload.to_bytes(), reply_type))
             elif error is None:
-                error = self._error(key, reply, self.timeout)
+                error = self._error(key, reply, deadline)
         if found:
             return found
         raise error if error is not None else self._unavailable(key)
@@ -241,14 +244,17 @@ class FleetClient:
     def clock(self) -> Clock:
         return self._query(self.keys.clock, None, Clock)
 
+    # Pause, resume, reset and step reach every daemon of a shared fleet, and return once all
+    # of them have acted (the reply is the first daemon's clock): one clock for the fleet.
+
     def pause(self) -> Clock:
-        return self._query(self.keys.pause, None, Clock)
+        return self._query_all(self.keys.pause, None, Clock)[0]
 
     def resume(self) -> Clock:
-        return self._query(self.keys.resume, None, Clock)
+        return self._query_all(self.keys.resume, None, Clock)[0]
 
     def reset(self, seed: int | None = None) -> Clock:
-        return self._query(self.keys.reset, ResetRequest(seed=seed), Clock)
+        return self._query_all(self.keys.reset, ResetRequest(seed=seed), Clock)[0]
 
     def step(
         self,
@@ -284,7 +290,8 @@ class FleetClient:
         req = StepRequest(
             ticks=ticks, cmd_vel=cmds, commands=arrays, observe=list(observe), publish=publish, packed=packed
         )
-        return self._query(self.keys.step, req, StepReply, timeout)
+        replies = self._query_all(self.keys.step, req, StepReply, timeout)
+        return replies[0] if len(replies) == 1 else _merge_steps(replies, req.observe)
 
     # -- motion ---------------------------------------------------------------------------
 
@@ -490,6 +497,36 @@ class FleetClient:
     def latest_scan(self, namespace: str) -> LaserScan | None:
         """The daemon's most recent scan of a robot (None before its first scan)."""
         return self._latest("scan", namespace, LaserScan)
+
+
+def _merge_steps(replies: list[StepReply], observe: list[str]) -> StepReply:
+    """One step reply from every daemon's: the observations of all (packed rows in the order
+    asked), the fewest ticks run, cancelled if any was."""
+    observations = {k: v for r in replies for k, v in r.observations.items()}
+    parts = [r.packed for r in replies if r.packed is not None]
+    packed = None
+    if parts:
+        names = [n for p in parts for n in p.names]
+        samples = parts[0].samples
+        odom = np.concatenate([np.frombuffer(p.odom, "<f8").reshape(-1, 6) for p in parts])
+        scan_time = np.concatenate([np.frombuffer(p.scan_time, "<f8") for p in parts])
+        ranges = np.concatenate([np.frombuffer(p.ranges, "<f4").reshape(-1, samples) for p in parts])
+        where = {n: k for k, n in enumerate(names)}
+        order = [where[n] for n in observe if n in where]
+        packed = PackedObservations(
+            names=[names[k] for k in order],
+            samples=samples,
+            odom=odom[order].tobytes(),
+            scan_time=scan_time[order].tobytes(),
+            ranges=ranges[order].tobytes(),
+        )
+    return msgspec.structs.replace(
+        replies[0],
+        ticks_run=min(r.ticks_run for r in replies),
+        cancelled=any(r.cancelled for r in replies),
+        observations=observations,
+        packed=packed,
+    )
 
 
 @dataclass(frozen=True)

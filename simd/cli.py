@@ -47,8 +47,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--join",
         action="store_true",
         help="share the prefix with the other --join daemons on the network: each spawn is placed on one of them "
-        "by its name, lists are merged, robots on other daemons are seen and felt here (in progress: each "
-        "daemon keeps its own clock; docs/scale-out.md)",
+        "by its name, lists are merged, robots on other daemons are seen and felt here, pause/resume/reset/step "
+        "reach every daemon (in progress: docs/scale-out.md)",
     )
     p.add_argument(
         "--id",

@@ -8,6 +8,7 @@ import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from clients import FleetClient, wait_until
@@ -107,3 +108,42 @@ def test_robots_on_different_daemons_see_each_other(fleet: tuple[str, dict[str, 
         assert wait_until(lambda: 0.85 < ahead(on_b) < 1.05, 10.0), ahead(on_b)
         c.delete(on_b)  # gone from the fleet: gone from a's scans
         assert wait_until(lambda: ahead(on_a) == float("inf"), 10.0), ahead(on_a)
+
+
+def test_one_clock_steps_every_daemon_and_merges_what_they_observe(
+    router: Router,  # noqa: F811
+    tmp_path: Path,
+) -> None:
+    from protocol.control import Clock
+
+    endpoint = router[0]
+    daemons = [
+        _start(
+            simd_command("-m", "client", "-e", endpoint, "--join", "--id", d, "--world", "empty", "--lockstep"),
+            tmp_path / f"simd-{d}.log",
+        )
+        for d in ("a", "b")
+    ]
+    try:
+        with FleetClient(endpoint, timeout=5.0) as c:
+            assert wait_until(lambda: [d.id for d in c.daemons()] == ["a", "b"], 20.0)
+            names = [f"r{i}" for i in range(20)]
+            on_a = next(n for n in names if owner(n, ["a", "b"]) == "a")
+            on_b = next(n for n in names if owner(n, ["a", "b"]) == "b")
+            c.spawn(on_a, 0.0, 0.0)
+            c.spawn(on_b, 0.0, 3.0)
+            reply = c.step(30, cmd_vel={on_a: (0.2, 0.0), on_b: (0.1, 0.0)}, observe=[on_b, on_a])
+            assert reply.ticks_run == 30 and sorted(reply.observations) == sorted([on_a, on_b])
+            x_a = reply.observations[on_a].odom.pose.pose.position.x
+            x_b = reply.observations[on_b].odom.pose.pose.position.x
+            assert 0.15 < x_a < 0.2 and 0.07 < x_b < 0.1  # each driven as asked, on its own daemon
+            clocks = c._query_all(c.keys.clock, None, Clock)  # every daemon's own clock
+            assert sorted(k.tick for k in clocks) == [30, 30]  # one step, both daemons
+            packed = c.step(6, commands=([on_a, on_b], np.array([[0.2, 0.0], [0.1, 0.0]])), observe=[on_b, on_a],
+                            packed=True, publish=False)  # fmt: skip
+            assert packed.packed is not None and packed.packed.names == [on_b, on_a]  # rows in the order asked
+            c.reset()
+            assert sorted(k.tick for k in c._query_all(c.keys.clock, None, Clock)) == [0, 0]
+    finally:
+        for p in daemons:
+            _stop(p)

@@ -20,6 +20,7 @@ from collections.abc import Mapping
 from functools import partial
 from typing import Any
 
+import msgspec
 import zenoh
 
 from protocol.codec import encode
@@ -27,11 +28,13 @@ from protocol.control import (
     Clock,
     DeleteRequest,
     Observation,
+    PackedCommands,
     PackedObservations,
     Request,
     RobotList,
     SpawnRequest,
     StepReply,
+    StepRequest,
 )
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
@@ -77,8 +80,11 @@ class FleetAdapter:
     # -- requests (zenoh threads) ---------------------------------------------------------------
 
     def _submit(self, request: Request, pending: requests.Pending) -> None:
-        if self.members is not None and not self._ours(request, pending):
-            return
+        if self.members is not None:
+            if not self._ours(request, pending):
+                return
+            if isinstance(request, StepRequest):
+                request = self._for_here(request)
 
         def send(result: Result | FleetError) -> None:
             if isinstance(result, FleetError):
@@ -116,6 +122,28 @@ class FleetAdapter:
             pending.skip()
             return False
         return True
+
+    def _for_here(self, request: StepRequest) -> StepRequest:
+        """A shared fleet's step as this daemon runs it: every daemon steps (the client waits
+        for all of them), each commanding and observing its own robots; names alive on another
+        daemon are left to it, names alive nowhere stay (and are refused as unknown)."""
+        assert self.members is not None
+        own, alive = self._own, self.members.alive
+
+        def here(ns: str) -> bool:
+            return ns in own or not alive(ns)
+
+        commands = request.commands
+        if commands is not None and not all(here(n) for n in commands.names):
+            keep = [k for k, n in enumerate(commands.names) if here(n)]
+            twist = b"".join(commands.twist[16 * k : 16 * k + 16] for k in keep)
+            commands = PackedCommands(names=[commands.names[k] for k in keep], twist=twist)
+        return msgspec.structs.replace(
+            request,
+            cmd_vel={ns: tw for ns, tw in request.cmd_vel.items() if here(ns)},
+            commands=commands,
+            observe=[ns for ns in request.observe if here(ns)],
+        )
 
     def _answers_delete(self, key: str) -> bool:
         assert self.members is not None
