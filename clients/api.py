@@ -125,6 +125,19 @@ class FleetClient:
 
     # -- queries --------------------------------------------------------------------------
 
+    def _ask(self, key: str, request: object | None, deadline: float) -> Any:
+        """Send a query every daemon that declares ``key`` hears (in a shared fleet the one
+        that owns the answer replies; zenoh's default target would pick one of them), keeping
+        each one's reply (they share the key, which zenoh's default consolidation would merge)."""
+        return self.session.get(
+            f"{key}?format=msgpack",
+            payload=encode(request) if request is not None else None,
+            encoding="application/msgpack",
+            timeout=deadline,
+            target=zenoh.QueryTarget.ALL,
+            consolidation=zenoh.ConsolidationMode.NONE,
+        )
+
     def _query_all(
         self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None
     ) -> list[T]:
@@ -132,17 +145,8 @@ class FleetClient:
         all have answered; the first error when none answered well, as :meth:`_query` raises it."""
         found: list[T] = []
         error: FleetError | None = None
-        payload = encode(request) if request is not None else None
         deadline = self.timeout if timeout is None else timeout
-        replies = self.session.get(
-            f"{key}?format=msgpack",
-            payload=payload,
-            encoding="application/msgpack",
-            timeout=deadline,
-            target=zenoh.QueryTarget.ALL,
-            consolidation=zenoh.ConsolidationMode.NONE,  # every daemon's reply (they share the key)
-        )
-        for reply in replies:
+        for reply in self._ask(key, request, deadline):
             if reply.ok is not None:
                 found.append(decode(reply.ok.payload.to_bytes(), reply_type))
             elif error is None:
@@ -152,19 +156,9 @@ class FleetClient:
         raise error if error is not None else self._unavailable(key)
 
     def _query(self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None) -> T:
+        """The first answer (one daemon, or the one that owns the answer in a shared fleet)."""
         deadline = self.timeout if timeout is None else timeout
-        payload = encode(request) if request is not None else None
-        replies = self.session.get(
-            f"{key}?format=msgpack",
-            payload=payload,
-            encoding="application/msgpack",
-            timeout=deadline,
-            # every daemon that declares the key hears it (in a shared fleet the one that owns
-            # the answer replies; zenoh's default would pick one of them)
-            target=zenoh.QueryTarget.ALL,
-            consolidation=zenoh.ConsolidationMode.NONE,  # every daemon's reply (they share the key)
-        )
-        for reply in replies:
+        for reply in self._ask(key, request, deadline):
             if reply.ok is not None:
                 return decode(reply.ok.payload.to_bytes(), reply_type)
             raise self._error(key, reply, deadline)
@@ -228,12 +222,7 @@ class FleetClient:
     def daemons(self) -> list[DaemonInfo]:
         """Every daemon serving this prefix, by id (each answers ``P/daemons`` for itself)."""
         found = []
-        for reply in self.session.get(
-            f"{self.keys.daemons}?format=msgpack",
-            timeout=self.timeout,
-            target=zenoh.QueryTarget.ALL,
-            consolidation=zenoh.ConsolidationMode.NONE,
-        ):
+        for reply in self._ask(self.keys.daemons, None, self.timeout):
             if reply.ok is not None:
                 found.append(decode(reply.ok.payload.to_bytes(), DaemonInfo))
         return sorted(found, key=lambda d: d.id)

@@ -234,7 +234,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
             self._scan, self._state = self.remote.step(v, w)
             return
         robot = self.sim.find(ROBOT)
-        assert robot is not None
+        if robot is None:
+            raise gymnasium.error.ResetNeeded("call reset() before step()")
         for _ in range(TICKS_A_STEP):
             self.sim.command(robot, v, w)
             snap = self.sim.step()

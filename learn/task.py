@@ -51,9 +51,9 @@ def observation_bounds(model: RobotModel, beams: int, diagonal: float) -> tuple[
 def command(action: Any, model: RobotModel, discrete: bool) -> tuple[float, float]:
     """(v m/s, w rad/s) for an action: a discrete choice, or fractions -1..1 of the limits (clipped)."""
     if discrete:
-        try:
-            k = int(action)
-        except (TypeError, ValueError):
+        try:  # a whole number (an int, a numpy integer, a 0-d array); not 2.7, not "1"
+            k = int(action) if not isinstance(action, (str, bytes)) and float(action) == int(action) else -1
+        except (TypeError, ValueError, OverflowError):
             k = -1
         if not 0 <= k < len(DISCRETE_TURNS):
             raise ValueError(f"a discrete action is 0..{len(DISCRETE_TURNS) - 1}, got {action!r}")
@@ -76,9 +76,9 @@ def command_many(actions: list[Any], model: RobotModel, discrete: bool) -> npt.N
         a = np.asarray(actions, dtype=np.float64)
     except (TypeError, ValueError):
         a = None
-    if a is not None and discrete and a.shape == (k,):
-        turn = np.trunc(a)  # int() of each, as command() takes it
-        if np.all((turn >= 0) & (turn < len(DISCRETE_TURNS))):
+    if a is not None and discrete and a.shape == (k,) and not any(isinstance(x, (str, bytes)) for x in actions):
+        turn = np.trunc(a)
+        if np.all((turn == a) & (turn >= 0) & (turn < len(DISCRETE_TURNS))):
             out = np.empty((k, 2))
             out[:, 0] = DISCRETE_SPEED
             out[:, 1] = np.asarray(DISCRETE_TURNS)[turn.astype(np.int64)]

@@ -106,9 +106,14 @@ def test_actions_outside_the_space_are_clipped_and_nonsense_is_refused() -> None
         with pytest.raises(ValueError, match="two finite numbers"):
             env.step(bad)
     d = NavigateEnv(world="empty", discrete=True)
+    with pytest.raises(gymnasium.error.ResetNeeded):
+        d.step(1)  # before any reset
     d.reset(seed=0)
-    with pytest.raises(ValueError, match="discrete action"):
-        d.step(7)
+    for not_a_choice in (7, 2.7, "1", None):
+        with pytest.raises(ValueError, match="discrete action"):
+            d.step(not_a_choice)
+    d.step(np.int64(2))
+    d.step(np.array(4))  # a whole number, however it comes
 
 
 def test_bad_settings_say_what_to_fix() -> None:
