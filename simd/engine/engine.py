@@ -419,6 +419,9 @@ class Engine:
                     f"commands.twist must hold 2 float64 for each of the {len(names)} names, got {len(raw)} bytes",
                     "commands",
                 )
+            if len(set(names)) != len(names):
+                twice = next(n for n in names if names.count(n) > 1)
+                raise FleetError(ErrorCode.INVALID_VALUE, f"commands name {twice!r} more than once", "commands")
             values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
             field = "commands"
         values = values.reshape(len(names), 2)

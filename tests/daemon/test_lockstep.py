@@ -170,6 +170,9 @@ def test_commands_as_arrays_drive_as_cmd_vel_does_and_bad_ones_are_refused(
         with pytest.raises(FleetError, match=words) as e:
             c.step(5, commands=commands)
         assert e.value.code.value == code and e.value.field == "commands"
+    with pytest.raises(FleetError, match="'a' more than once") as twice:
+        c.step(5, commands=(["a", "a"], np.zeros((2, 2))))
+    assert twice.value.code.value == "invalid_value"
     with pytest.raises(ValueError, match=r"shape \(2, 2\)"):
         c.step(5, commands=(["a", "b"], np.zeros(3)))
     assert c.clock().tick == 20  # nothing stepped
