@@ -36,13 +36,11 @@ from typing import Any
 import gymnasium
 import numpy as np
 import numpy.typing as npt
-from gymnasium import spaces
 
 from learn.remote import Daemon
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
-    DISCRETE_TURNS,
     F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
@@ -52,8 +50,8 @@ from learn.task import (
     drivable,
     footprint_ranges,
     free_pose,
-    observation_bounds,
     observe,
+    spaces_for,
     state_of,
 )
 from protocol.control import SpawnRequest
@@ -97,16 +95,9 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self.region = drivable(self.sim, self.model)  # where starts and goals are drawn
         self.remote = _Remote(endpoint, prefix, self.sim.world.name, publish) if endpoint is not None else None
         self._state: tuple[tuple[float, float, float], tuple[float, float]] = ((0.0, 0.0, 0.0), (0.0, 0.0))
-        x0, x1, y0, y1 = self.sim.world.bounds
-        diagonal = math.hypot(x1 - x0, y1 - y0)
-        low, high = observation_bounds(self.model, beams, diagonal)
-        self._obs_box = spaces.Box(low, high, dtype=np.float32)
-        self.observation_space = self._obs_box
-        # (linear, angular) as fractions of the model's limits: the symmetric, normalised box that
-        # gymnasium's checker and Stable-Baselines3 ask for; (1, 1) is full speed ahead, turning left
-        self.action_space: spaces.Space[Any] = (
-            spaces.Discrete(len(DISCRETE_TURNS)) if discrete else spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        )
+        found = spaces_for(self.model, beams, self.sim.world, discrete)
+        self.observation_space, self.action_space = found.observation, found.action
+        self._low, self._high = found.low, found.high
         self._discrete = discrete
         self.goal = (0.0, 0.0)
         self.steps = 0
@@ -258,8 +249,8 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
 
     def _observation(self) -> F32:
         pose, velocity = self._state
-        return observe(pose, velocity, self.goal, self._scan, self.beams, self.range_max, self._obs_box.low,
-                       self._obs_box.high)  # fmt: skip
+        return observe(pose, velocity, self.goal, self._scan, self.beams, self.range_max, self._low,
+                       self._high)  # fmt: skip
 
     def _info(self) -> dict[str, Any]:
         x, y, yaw = self._pose()

@@ -23,7 +23,6 @@ fleet in a few numpy passes: a thousand agents step about as fast as the core mo
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -36,7 +35,6 @@ from learn.remote import Daemon
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
-    DISCRETE_TURNS,
     F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
@@ -46,8 +44,8 @@ from learn.task import (
     drivable,
     footprint_ranges,
     free_pose,
-    observation_bounds,
     observe_many,
+    spaces_for,
 )
 from protocol.control import SpawnRequest
 from simd.core.mapworld import load_world_or_map
@@ -104,12 +102,10 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self.possible_agents = [f"tb3_{i}" for i in range(robots)]
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
-        x0, x1, y0, y1 = self.sim.world.bounds
-        self._low, self._high = observation_bounds(self.model, beams, math.hypot(x1 - x0, y1 - y0))
-        self._obs_space = spaces.Box(self._low, self._high, dtype=np.float32)
-        self._act_space: spaces.Space[Any] = (
-            spaces.Discrete(len(DISCRETE_TURNS)) if discrete else spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
-        )
+        found = spaces_for(self.model, beams, self.sim.world, discrete)
+        self._obs_space: spaces.Space[Any] = found.observation
+        self._act_space = found.action
+        self._low, self._high = found.low, found.high
         samples = self.sim.config.lidar.samples
         self._footprint = footprint_ranges(self.model, samples)
         self.region = drivable(self.sim, self.model)  # where starts and goals are drawn
@@ -338,15 +334,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         distance = np.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
         return obs, distance
 
-    def _infos(
-        self, live: npt.NDArray[np.int64], distance: npt.NDArray[np.float64],
-        arrived: list[bool] | None = None, crashed: list[bool] | None = None,
-    ) -> list[dict[str, Any]]:  # fmt: skip
+    def _infos(self, live: npt.NDArray[np.int64], distance: npt.NDArray[np.float64]) -> list[dict[str, Any]]:
+        """The reset's infos (a step builds its own, around the wait for the scans)."""
         poses, goals, far = self._pose[live].tolist(), self._goal[live].tolist(), distance.tolist()
-        if arrived is None or crashed is None:
-            together = zip(poses, goals, far, strict=True)
-            return [{"pose": tuple(p), "goal": tuple(g), "distance": x} for p, g, x in together]
-        return [
-            {"pose": tuple(p), "goal": tuple(g), "distance": x, "arrived": a, "collided": c}
-            for p, g, x, a, c in zip(poses, goals, far, arrived, crashed, strict=True)
-        ]
+        together = zip(poses, goals, far, strict=True)
+        return [{"pose": tuple(p), "goal": tuple(g), "distance": x} for p, g, x in together]

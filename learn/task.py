@@ -4,16 +4,19 @@ fleet environments (learn/navigate.py, learn/navigate_fleet.py)."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
+from gymnasium import spaces
 
 from learn.reach import Reachable, reachable
 from protocol.control import SpawnRequest
 from protocol.errors import FleetError
 from simd.core.models import RobotModel
 from simd.core.sim import Simulation
+from simd.core.worldfile import WorldGeometry
 
 F32 = npt.NDArray[np.float32]
 
@@ -46,6 +49,29 @@ def observation_bounds(model: RobotModel, beams: int, diagonal: float) -> tuple[
     low = np.concatenate([np.zeros(beams), [0.0, -math.pi, -vmax, -wmax]]).astype(np.float32)
     high = np.concatenate([np.ones(beams), [diagonal, math.pi, vmax, wmax]]).astype(np.float32)
     return low, high
+
+
+@dataclass(frozen=True)
+class Spaces:
+    """Both environments' spaces for one robot, and the observation box's bounds (typed)."""
+
+    observation: Any  # a spaces.Box (typed loosely by gymnasium)
+    action: spaces.Space[Any]
+    low: F32
+    high: F32
+
+
+def spaces_for(model: RobotModel, beams: int, world: WorldGeometry, discrete: bool) -> Spaces:
+    """The observation box (its distance bound the world's diagonal) and the action space.
+    Actions are (linear, angular) as fractions of the model's limits: the symmetric, normalised
+    box that Gymnasium's checker and Stable-Baselines3 ask for ((1, 1) is full speed ahead,
+    turning left), or the discrete turns."""
+    x0, x1, y0, y1 = world.bounds
+    low, high = observation_bounds(model, beams, math.hypot(x1 - x0, y1 - y0))
+    action: Any = (
+        spaces.Discrete(len(DISCRETE_TURNS)) if discrete else spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+    )
+    return Spaces(spaces.Box(low, high, dtype=np.float32), action, low, high)
 
 
 def command(action: Any, model: RobotModel, discrete: bool) -> tuple[float, float]:
