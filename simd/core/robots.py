@@ -103,6 +103,11 @@ class RobotTable:
     def row_of(self, namespace: str) -> int | None:
         return self._row_of.get(namespace)
 
+    def rows_of(self, keys: list[str]) -> list[int | None]:
+        """The row of each robot ``keys`` names (by name or namespace), None where none is."""
+        by_key, row_of = self._by_key, self._row_of
+        return [None if (r := by_key.get(k)) is None else row_of[r.namespace] for k in keys]
+
     def append(self, robot: Robot, **values: object) -> int:
         """Add ``robot`` as the last row; columns not given start at zero. Returns its row."""
         unknown = set(values) - set(self.columns())

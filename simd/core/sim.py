@@ -22,7 +22,7 @@ from protocol.control import SpawnRequest
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
 from simd.core import drive, sensor_model
-from simd.core.lidar import LidarSpec, StaticScene, cast
+from simd.core.lidar import LidarSpec, StaticScene, cast, outline_segments
 from simd.core.models import MODELS, RobotModel
 from simd.core.physics import Physics
 from simd.core.robots import Robot, RobotTable
@@ -384,6 +384,7 @@ class Simulation:
             scan_namespaces=[t.namespaces[i] for i in due.tolist()],
             scan_rows=scans,
             epoch=self.epoch,
+            scan_index=due,
         )
 
     def _slip(self, old_x: F64, old_y: F64, old_yaw: F64) -> tuple[F64, F64, F64]:
@@ -411,13 +412,7 @@ class Simulation:
         """The scans of the robots in ``rows``, against every robot's outline at (x, y, yaw)."""
         spec = self.config.lidar
         c, s = np.cos(yaw), np.sin(yaw)
-        # every robot's outline in the world frame, as segments
-        ox = outline[:, :, 0]
-        oy = outline[:, :, 1]
-        wx = x[:, None] + ox * c[:, None] - oy * s[:, None]
-        wy = y[:, None] + ox * s[:, None] + oy * c[:, None]
-        seg = np.stack([wx, wy, np.roll(wx, -1, axis=1), np.roll(wy, -1, axis=1)], axis=2)
-        dyn_segments = seg.reshape(-1, 4)
+        dyn_segments = outline_segments(x, y, c, s, outline)  # every robot's outline in the world frame
         dyn_owner = np.repeat(rid, outline.shape[1])
         off = lidar_off[rows]
         cr, sr = c[rows], s[rows]

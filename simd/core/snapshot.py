@@ -10,7 +10,7 @@ a thread of its own, beside the next tick's physics): reading ``scans`` waits fo
 from __future__ import annotations
 
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
@@ -19,6 +19,7 @@ from simd.core.models import RobotModel
 
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]
+I64 = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,8 @@ class TickSnapshot:
     scan_namespaces: list[str]
     scan_rows: F32 | Future[F32]  # (k, samples), or the lidar's promise of them
     epoch: int = 0
+    #: the table rows of ``scan_namespaces`` (rows of this tick's ``namespaces``)
+    scan_index: I64 = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def scans(self) -> F32:

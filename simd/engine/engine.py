@@ -42,6 +42,7 @@ from protocol.messages import Time
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
+from simd.engine.observe import LatestScans, observe_packed
 from simd.engine.ports import (
     Adapter,
     Deleted,
@@ -88,6 +89,10 @@ class _StepJob:
     rows_of: list[str] | None = None  # the table's namespaces list that ``rows`` belong to
     rows: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     here: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))  # names still in the world
+    #: the table rows of ``request.observe``, found when the request came (valid while the
+    #: table's namespaces list is ``watched_of``)
+    watched: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    watched_of: list[str] | None = None
 
     def apply(self, sim: Simulation) -> None:
         """Command this step's robots for the coming tick."""
@@ -148,7 +153,7 @@ class Engine:
         self._inbox: queue.Queue[_Call | None] = queue.Queue(MAX_PENDING_REQUESTS)
         self._steps: collections.deque[_StepJob] = collections.deque()
         self._pending_commands: dict[str, tuple[float, float]] = {}
-        self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}  # namespace -> (tick, row) of its scan
+        self._scans = LatestScans(sim.config.scan_every)  # each robot's newest scan
         self._last_snap: TickSnapshot | None = None
         self._rtf = RtfMeter()
         #: robots simulated elsewhere (other daemons of a shared fleet): called each tick, it
@@ -293,8 +298,7 @@ class Engine:
         if self._steps:  # a step's own commands hold for all of its ticks
             self._steps[0].apply(sim)
         snap = sim.step()
-        for i, ns in enumerate(snap.scan_namespaces):
-            self._latest_scan[ns] = (snap, i)
+        self._scans.record(snap)
         self._last_snap = snap
         self._rtf.record(self._wall(), snap.time)
         if publish:
@@ -340,7 +344,7 @@ class Engine:
 
     def _delete(self, req: DeleteRequest, reply: Reply) -> Result:
         last = self.sim.delete(req.name)
-        self._latest_scan.pop(last.namespace, None)
+        self._scans.forget(last.namespace)
         self._pending_commands.pop(last.namespace, None)
         self._event(Deleted(last))
         self._changed()
@@ -379,7 +383,7 @@ class Engine:
         self.sim.reset(req.seed)
         self._gather_commands()  # commands sent before the reset do not outlive it
         self._pending_commands = {}
-        self._latest_scan.clear()
+        self._scans.clear()
         self._event(WorldReset(self.sim.epoch))
         self._changed()
         self._rtf.restart(self._wall(), self.sim.time)
@@ -394,16 +398,21 @@ class Engine:
             )
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
             raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
-        names, v, w = self._step_commands(req)
-        find = self.sim.find
-        for ns in req.observe:
-            if find(ns) is None:
-                raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
-        self._steps.append(_StepJob(req, reply, names, v, w))
+        t = self.sim.robots
+        names, rows, v, w = self._step_commands(req)
+        watched = t.rows_of(req.observe)
+        if None in watched:
+            ns = req.observe[watched.index(None)]
+            raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
+        job = _StepJob(req, reply, names, v, w, rows_of=t.namespaces, rows=rows, here=np.ones(len(rows), dtype=bool))
+        job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.namespaces
+        self._steps.append(job)
         return None
 
-    def _step_commands(self, req: StepRequest) -> tuple[list[str], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """A step's commands, checked, as namespaces and (v, w) columns."""
+    def _step_commands(
+        self, req: StepRequest
+    ) -> tuple[list[str], npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        """A step's commands, checked, as namespaces, their table rows and (v, w) columns."""
         row_of = self.sim.robots.row_of
         if req.commands is None:
             names = list(req.cmd_vel)
@@ -429,10 +438,11 @@ class Engine:
         if not finite.all():
             ns = names[int(np.argmin(finite))]
             raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
-        for ns in names:
-            if row_of(ns) is None:
-                raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", field)
-        return names, values[:, 0].copy(), values[:, 1].copy()
+        rows = [row_of(ns) for ns in names]
+        if None in rows:
+            ns = names[rows.index(None)]
+            raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", field)
+        return names, np.array(rows, dtype=np.int64), values[:, 0].copy(), values[:, 1].copy()
 
     def _run_slice(self) -> None:
         """Run the current step for about SLICE_SECONDS (at least one tick)."""
@@ -455,7 +465,7 @@ class Engine:
 
     def _step_result(self, job: _StepJob, cancelled: bool) -> StepResult:
         if job.request.packed:
-            return StepResult(self.clock(), job.ran, cancelled, packed=self._observe_packed(job.request.observe))
+            return StepResult(self.clock(), job.ran, cancelled, packed=self._observe_packed(job))
         states = {}
         scans = {}
         for key in job.request.observe:
@@ -463,49 +473,22 @@ class Engine:
             if robot is None:  # deleted during the step
                 continue
             states[key] = self.sim.state(robot)
-            scan = self._latest_scan.get(robot.namespace)
+            scan = self._scans.get(robot.namespace)
             if scan is not None:
                 scans[key] = ScanRow(*scan)
         return StepResult(self.clock(), job.ran, cancelled, states, scans)
 
-    def _observe_packed(self, keys: list[str]) -> ObservedArrays:
-        """The odometry and latest scans of the robots ``keys`` names, as arrays: what their
-        topics carried (or would have, in a step that publishes nothing)."""
-        sim, t = self.sim, self.sim.robots
-        names: list[str] = []
-        rows: list[int] = []
-        for key in keys:
-            robot = sim.find(key)
-            if robot is not None:  # else deleted during the step
-                names.append(key)
-                rows.append(t.row(robot))
-        samples = sim.config.lidar.samples
-        snap = self._last_snap
-        odom = np.empty((len(rows), 6))
-        if snap is not None and snap.namespaces is t.namespaces:  # rows unchanged since the last tick
-            columns = (snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z)
-        else:  # a spawn or delete since (a cancelled step): the table's own columns
-            columns = (t.odom_x, t.odom_y, t.odom_yaw, t.vx, t.vy, t.wz)
-        for j, column in enumerate(columns):
-            odom[:, j] = column[rows]
-        scan_time = np.full(len(rows), np.nan)
-        ranges = np.full((len(rows), samples), np.nan, dtype=np.float32)
-        # the latest scans come from the last few ticks: copy them tick by tick, not robot by robot
-        by_tick: dict[int, tuple[TickSnapshot, list[int], list[int]]] = {}
-        latest_scan, namespaces = self._latest_scan, t.namespaces
-        for k, row in enumerate(rows):
-            latest = latest_scan.get(namespaces[row])
-            if latest is not None:
-                scan_snap, scan_row = latest
-                group = by_tick.get(id(scan_snap))
-                if group is None:
-                    group = by_tick[id(scan_snap)] = (scan_snap, [], [])
-                group[1].append(k)
-                group[2].append(scan_row)
-        for scan_snap, ks, scan_rows in by_tick.values():
-            ranges[ks] = scan_snap.scans[scan_rows]
-            scan_time[ks] = scan_snap.time
-        return ObservedArrays(names, odom, scan_time, ranges)
+    def _observe_packed(self, job: _StepJob) -> ObservedArrays:
+        """The odometry and latest scans of the robots the step observes, as arrays (robots
+        deleted during the step left out)."""
+        t, keys = self.sim.robots, job.request.observe
+        if job.watched_of is t.namespaces:  # no spawn or delete since the request came
+            names, rows = keys, job.watched
+        else:
+            found = t.rows_of(keys)
+            names = [key for key, row in zip(keys, found, strict=True) if row is not None]
+            rows = np.array([row for row in found if row is not None], dtype=np.int64)
+        return observe_packed(t, self._last_snap, self._scans, names, rows, self.sim.config.lidar.samples)
 
     def _event(self, event: Spawned | Deleted | WorldReset) -> None:
         for a in self.adapters:

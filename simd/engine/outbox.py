@@ -33,12 +33,19 @@ class Outbox:
     def put(self, work: Callable[[], object]) -> None:
         self._queue.put(work)
 
+    def idle(self) -> bool:
+        """Whether everything put so far has run: then work done on the caller's thread
+        instead keeps the order (a lockstep reply need not wait for this thread to wake)."""
+        return self._queue.unfinished_tasks == 0
+
     def _run(self) -> None:
         while (work := self._queue.get()) is not None:
             try:
                 work()
             except Exception:  # a failed put or reply must not stop the ones after it
                 log.exception("sending failed")
+            finally:
+                self._queue.task_done()
 
     def flush(self, timeout: float = 5.0) -> bool:
         """Wait until everything put so far has run (tests, and a clean shutdown)."""

@@ -537,3 +537,40 @@ def test_inconsistent_static_grid_raises(corrupt: Callable[[I64, I64], tuple[I64
 def test_specs_the_kernels_cannot_serve_are_refused(spec: dict[str, float]) -> None:
     with pytest.raises(ValueError):
         LidarSpec(**spec)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(("robots", "corners"), [(0, 4), (1, 1), (5, 3), (300, 12)])
+def test_outline_segments_twins_give_the_same_bits(robots: int, corners: int) -> None:
+    """The robots' outlines in the world frame, compiled and numpy, against the plain formula."""
+    rng = np.random.default_rng(21 + robots)
+    x, y, yaw = rng.uniform(-60, 60, robots), rng.uniform(-60, 60, robots), rng.uniform(-7, 7, robots)
+    outline = rng.uniform(-0.3, 0.3, (robots, corners, 2))
+    c, s = np.cos(yaw), np.sin(yaw)
+    ox, oy = outline[:, :, 0], outline[:, :, 1]
+    wx = x[:, None] + ox * c[:, None] - oy * s[:, None]
+    wy = y[:, None] + ox * s[:, None] + oy * c[:, None]
+    want = np.stack([wx, wy, np.roll(wx, -1, axis=1), np.roll(wy, -1, axis=1)], axis=2).reshape(-1, 4)
+    for kernel in ("native", "numpy"):
+        got = lidar.outline_segments(x, y, c, s, outline, kernel=kernel)
+        assert got.shape == (robots * corners, 4)
+        assert got.tobytes() == want.tobytes(), kernel
+
+
+def test_outline_segments_refuses_what_does_not_fit() -> None:
+    from simd.core.lidar import native_kernel
+
+    ones, outline, out = np.ones(3), np.zeros((6, 2)), np.empty((6, 4))
+    with pytest.raises(ValueError, match="corners"):
+        native_kernel.outline_segments(ones, ones, ones, ones, outline, 0, out)
+    with pytest.raises(ValueError, match="outline"):
+        native_kernel.outline_segments(ones, ones, ones, ones, outline, 3, np.empty((9, 4)))
+    with pytest.raises(ValueError, match="y"):
+        native_kernel.outline_segments(ones, np.ones(2), ones, ones, outline, 2, out)
+    with pytest.raises(TypeError, match="x"):
+        native_kernel.outline_segments(np.ones(3, dtype=np.float32), ones, ones, ones, outline, 2, out)
+    read_only = np.empty((6, 4))
+    read_only.setflags(write=False)
+    with pytest.raises(ValueError, match="writable"):
+        native_kernel.outline_segments(ones, ones, ones, ones, outline, 2, read_only)
+    native_kernel.outline_segments(ones, ones, ones, ones, outline, 2, out)  # and what fits runs
+    assert np.array_equal(out[:, :2], np.ones((6, 2))) and np.array_equal(out[:, 2:], np.ones((6, 2)))

@@ -4,9 +4,11 @@ here waits on the wall clock."""
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Mapping
 
+import numpy as np
 import pytest
 
 from protocol import control
@@ -181,6 +183,64 @@ def test_a_steps_commands_hold_and_observations_come_back() -> None:
     assert isinstance(step, StepResult) and step.ticks_run == 30
     assert step.states["a"].linear_velocity == pytest.approx(0.2)  # 1 s: the 0.5 s watchdog did not stop it
     assert step.scans["a"].ranges.shape == (360,) and step.scans["a"].time <= 1.0
+
+
+def _packed_step(e: Engine, r: Recorder, ticks: int, observe: list[str]) -> StepResult:
+    e.submit(control.StepRequest(ticks=ticks, observe=observe, packed=True), r.reply("step"))
+    e.serve_pending()
+    while not any(k == "step" for k, _ in r.log):
+        e._run_slice()
+    step = r.log.pop(next(i for i, (k, _) in enumerate(r.log) if k == "step"))[1]
+    assert isinstance(step, StepResult) and step.packed is not None
+    return step
+
+
+def _newest_scans(r: Recorder, names: list[str]) -> tuple[list[float], list[object]]:
+    """Each robot's newest scan in the ticks the recorder saw since the last reset (the reference)."""
+    times: list[float] = []
+    scans: list[object] = []
+    ticks = [s for k, s in r.log if k == "tick" and isinstance(s, TickSnapshot)]
+    for ns in names:
+        found = next(
+            ((s.time, s.scans[s.scan_namespaces.index(ns)]) for s in reversed(ticks) if ns in s.scan_namespaces), None
+        )
+        times.append(found[0] if found else math.nan)
+        scans.append(found[1] if found else None)
+    return times, scans
+
+
+@pytest.mark.parametrize("everyone", [False, True], ids=["some robots", "every robot in table order"])
+def test_a_packed_step_returns_each_robots_newest_scan_whatever_changed_meanwhile(everyone: bool) -> None:
+    """The newest scans are read from the last few ticks' snapshots while the table stays put
+    and looked up robot by robot after a spawn or delete: both must give what the ticks said."""
+    e, r = engine(lockstep=True)
+    for i in range(7):
+        e.submit(control.SpawnRequest(name=f"r{i}", x=float(i) - 3.0), r.reply("spawned"))
+    e.serve_pending()
+    asked = [f"r{i}" for i in range(7)] if everyone else ["r5", "r0", "r3", "r6", "r1"]
+    for ticks, change in [(13, None), (4, None), (2, "delete r3"), (1, None), (9, "spawn r9"), (3, None), (6, None)]:
+        if change == "delete r3":
+            e.submit(control.DeleteRequest(name="r3"), r.reply("deleted"))
+            asked = [a for a in asked if a != "r3"]
+        elif change == "spawn r9":
+            e.submit(control.SpawnRequest(name="r9", x=3.5), r.reply("spawned"))
+            asked = [*asked, "r9"]
+        e.serve_pending()
+        step = _packed_step(e, r, ticks, asked)
+        p = step.packed
+        assert p is not None and p.names == asked
+        times, scans = _newest_scans(r, asked)
+        np.testing.assert_array_equal(p.scan_time, times)
+        for k, want in enumerate(scans):
+            if want is None:
+                assert np.isnan(p.ranges[k]).all()
+            else:
+                np.testing.assert_array_equal(p.ranges[k], want)
+        last = [s for k, s in r.log if k == "tick"][-1]
+        assert isinstance(last, TickSnapshot)
+        rows = [last.namespaces.index(e.sim.find(a).namespace) for a in asked]  # type: ignore[union-attr]
+        np.testing.assert_array_equal(p.odom[:, 0], last.x[rows])
+        np.testing.assert_array_equal(p.odom[:, 5], last.angular_z[rows])
 
 
 def test_the_rtf_meter_measures_from_a_resume_on_an_injected_clock() -> None:

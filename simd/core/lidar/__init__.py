@@ -62,6 +62,7 @@ import numpy.typing as npt
 
 from simd.core.lidar import native_kernel, numpy_kernel
 from simd.core.lidar.native_kernel import KERNEL, NATIVE_UNAVAILABLE, native_spec_args
+from simd.core.lidar.outlines import outline_segments
 from simd.core.lidar.scene import StaticScene
 from simd.core.lidar.spec import EPS_CULL, STATIC_CELL, LidarSpec
 
@@ -79,6 +80,7 @@ __all__ = [
     "cast_native",
     "cast_numpy",
     "native_spec_args",
+    "outline_segments",
 ]
 
 

@@ -88,6 +88,10 @@ class _NativeModule(Protocol):
         /,
     ) -> None: ...
 
+    def outline_segments(
+        self, x: F64, y: F64, cos_yaw: F64, sin_yaw: F64, outline: F64, corners: int, out: F64, /
+    ) -> None: ...
+
 
 @functools.lru_cache(maxsize=8)
 def native_spec_args(spec: LidarSpec) -> _SpecArgs:
@@ -133,3 +137,10 @@ def cast(
     h0 = hdg + spec.angle_min  # beam-0 bearings; cos/sin from numpy, exactly as the numpy kernel
     _NATIVE.cast(*scene._native_args, org, h0, np.cos(h0), np.sin(h0), sown, dseg, down, *native_spec_args(spec), out)
     return out
+
+
+def outline_segments(x: F64, y: F64, cos_yaw: F64, sin_yaw: F64, outline: F64, corners: int, out: F64) -> None:
+    """The compiled ``outline_segments`` (see simd/core/lidar/outlines.py) into ``out``."""
+    if _NATIVE is None:
+        raise RuntimeError(f"the native lidar kernel is not available: {NATIVE_UNAVAILABLE}")
+    _NATIVE.outline_segments(x, y, cos_yaw, sin_yaw, outline, corners, out)
