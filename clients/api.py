@@ -198,8 +198,9 @@ class FleetClient:
         model: str = "burger",
         namespace: str | None = None,
     ) -> RobotRecord:
-        """Spawn a robot; returns its record once it is live. Raises FleetError if refused."""
-        req = SpawnRequest(name=name, namespace=namespace, model=model, x=x, y=y, yaw=yaw)
+        """Spawn a robot; returns its record once it is live. Raises FleetError if refused.
+        The pose may be any real numbers (numpy's too)."""
+        req = SpawnRequest(name=name, namespace=namespace, model=model, x=float(x), y=float(y), yaw=float(yaw))
         return self._query(self.keys.spawn, req, RobotRecord)
 
     def delete(self, name: str) -> RobotRecord:

@@ -195,6 +195,20 @@ class DaemonInfo(msgspec.Struct, kw_only=True):
     shared: bool = False
 
 
+class DaemonTick(msgspec.Struct, kw_only=True):
+    """``P/daemons/<id>/tick``: a daemon of a shared fleet, about to step its tick ``tick``,
+    says where its robots are (the true poses, not the odometry's): ``namespaces`` and their
+    ``models``, and ``poses`` as little-endian float64 rows x, y, yaw. The other daemons wait
+    for it and place those robots as ghosts before they step the same tick, so that a stepped
+    fleet is deterministic across daemons (docs/scale-out.md)."""
+
+    daemon: str
+    tick: int
+    namespaces: list[str]
+    models: list[str]
+    poses: bytes
+
+
 class Bounds(msgspec.Struct, kw_only=True):
     x_min: float
     x_max: float

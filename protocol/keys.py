@@ -20,6 +20,7 @@ key                    declared by simd as         payload     reply / notes
 ``P/scans``            publisher, on demand        FleetScans  the scans of a tick (the group due)
 ``P/daemons``          queryable                   (none)      DaemonInfo, one reply a daemon
 ``P/daemons/<id>``     liveliness token            --          present while daemon ``<id>`` runs
+``P/daemons/<id>/tick`` publisher, stepping only   DaemonTick  a shared fleet's daemons before each stepped tick
 =====================  ==========================  ==========  ======================================
 """
 
@@ -98,6 +99,11 @@ class Keys:
     def daemon(self, daemon_id: str) -> str:
         """The liveliness token of daemon ``daemon_id``."""
         return self._k("daemons", daemon_id)
+
+    def daemon_tick(self, daemon_id: str) -> str:
+        """Where daemon ``daemon_id`` of a shared fleet puts its robots before each tick it
+        steps (``*`` for every daemon's): the one clock of docs/scale-out.md."""
+        return self._k("daemons", daemon_id, "tick")
 
     def cmd_vel(self, ns: str) -> str:
         return self._k(ns, "cmd_vel")

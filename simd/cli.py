@@ -284,7 +284,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"simd: warning: listening on {', '.join(exposed)} without authentication: anyone who can reach it "
               "can spawn, delete and drive robots and answer in the daemon's place; for a secured fleet see "
               "docs/security.md (fleet-security init)", file=sys.stderr, flush=True)  # fmt: skip
-    from simd.adapters.fleet.presence import Members, Presence, infos, refusal, serving
+    from simd.adapters.fleet.presence import Members, Presence, fleet_tick, infos, refusal, serving
 
     others = serving(session, keys)
     why = refusal(others, infos(session, keys) if others else [], args.id, world.name, args.join, keys.prefix)
@@ -294,6 +294,10 @@ def main(argv: list[str] | None = None) -> int:
             ros_session.close()
         sim.close()
         return fail(why)
+    if args.join and others:
+        tick = fleet_tick(session, keys)
+        if tick is not None and sim.tick == 0 and len(sim.robots) == 0:
+            sim.start_at(tick)  # the fleet's clock: stepped together, its daemons' ticks agree
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver)
     adapter: FleetAdapter | None = None
     presence: Presence | None = None
@@ -306,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
             from simd.adapters.fleet.ghosts import GhostFeed
 
             ghost_feed = GhostFeed(session, keys, members, adapter.own_namespaces)
-            engine.ghost_source = ghost_feed.take
+            engine.ghost_source = ghost_feed
         presence = Presence(session, keys, args.id, world.name, shared=args.join)
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions

@@ -103,6 +103,14 @@ class Simulation:
     def time(self) -> float:
         return self.tick * self.config.dt
 
+    def start_at(self, tick: int) -> None:
+        """Start an empty world's clock at ``tick`` (a daemon joining a fleet takes its clock)."""
+        if len(self.robots) or self.tick:
+            raise ValueError("only an empty world that has not ticked can start at another tick")
+        if tick < 0:
+            raise ValueError("tick must be >= 0")
+        self.tick = tick
+
     @property
     def seed(self) -> int:
         return self._seed

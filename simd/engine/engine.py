@@ -16,7 +16,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -46,7 +46,9 @@ from simd.engine.observe import LatestScans, observe_packed
 from simd.engine.ports import (
     Adapter,
     Deleted,
+    GhostSource,
     ObservedArrays,
+    OwnRobots,
     Reply,
     Result,
     RobotList,
@@ -156,9 +158,9 @@ class Engine:
         self._scans = LatestScans(sim.config.scan_every)  # each robot's newest scan
         self._last_snap: TickSnapshot | None = None
         self._rtf = RtfMeter()
-        #: robots simulated elsewhere (other daemons of a shared fleet): called each tick, it
-        #: gives their poses when they changed (namespace -> (model, x, y, yaw)), else None
-        self.ghost_source: Callable[[], Mapping[str, tuple[str, float, float, float]] | None] | None = None
+        #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
+        self.ghost_source: GhostSource | None = None
+        self._models: tuple[list[str] | None, list[str]] = (None, [])  # (namespaces, their models)
         self._saver = saver  # --state: the fleet written as it runs
         self._next_save = math.inf
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
@@ -292,7 +294,7 @@ class Engine:
         sim.command_many(self._gather_commands())
         self._pending_commands = {}
         if self.ghost_source is not None:
-            ghosts = self.ghost_source()
+            ghosts = self.ghost_source.take(self._own_robots() if self._steps else None)
             if ghosts is not None:
                 sim.set_ghosts(ghosts)
         if self._steps:  # a step's own commands hold for all of its ticks
@@ -307,6 +309,12 @@ class Engine:
             if snap.tick % CLOCK_EVERY == 0:
                 self._announce_clock()
         return snap
+
+    def _own_robots(self) -> OwnRobots:
+        t = self.sim.robots
+        if self._models[0] is not t.namespaces:
+            self._models = (t.namespaces, [r.model.name for r in t.robots])
+        return OwnRobots(self.sim.tick, t.namespaces, self._models[1], t.x, t.y, t.yaw)
 
     def _announce_clock(self) -> None:
         clock = self.clock()
@@ -381,6 +389,8 @@ class Engine:
     def _reset(self, req: ResetRequest, reply: Reply) -> Result:
         self._cancel_steps()
         self.sim.reset(req.seed)
+        if self.ghost_source is not None:
+            self.ghost_source.forget()
         self._gather_commands()  # commands sent before the reset do not outlive it
         self._pending_commands = {}
         self._scans.clear()

@@ -133,3 +133,35 @@ class Adapter(Protocol):
 
     def close(self) -> None:
         """Stop: undeclare, join threads. Called once, on the thread that ran the engine."""
+
+
+Ghosts = Mapping[str, tuple[str, float, float, float]]
+
+
+@dataclass(frozen=True)
+class OwnRobots:
+    """This daemon's robots as a step is about to run tick ``tick + 1``: true poses, rows of
+    ``namespaces``. What the other daemons of a shared fleet place as ghosts for that tick."""
+
+    tick: int
+    namespaces: list[str]
+    models: list[str]
+    x: F64
+    y: F64
+    yaw: F64
+
+
+class GhostSource(Protocol):
+    """The robots simulated elsewhere (the other daemons of a shared fleet), asked before each tick."""
+
+    def take(self, stepping: OwnRobots | None) -> Ghosts | None:
+        """Their poses (namespace -> (model, x, y, yaw)) when they changed, else None.
+        ``stepping`` is given while a step runs: then every daemon that steps hears of this
+        one's robots and the answer is the others' of the same tick (one clock); otherwise
+        the latest they published (real time)."""
+        ...
+
+    def forget(self) -> None:
+        """This world was reset (every daemon of a fleet is, before the next step): what the
+        others put before is of the old run."""
+        ...

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from clients import FleetClient, wait_until
+from clients.api import observed_arrays
 from protocol import FleetError
 from protocol.placement import owner
 from tests.conftest import ROOT, simd_command
@@ -144,6 +145,63 @@ def test_one_clock_steps_every_daemon_and_merges_what_they_observe(
             assert packed.packed is not None and packed.packed.names == [on_b, on_a]  # rows in the order asked
             c.reset()
             assert sorted(k.tick for k in c._query_all(c.keys.clock, None, Clock)) == [0, 0]
+    finally:
+        for p in daemons:
+            _stop(p)
+
+
+def test_a_stepped_fleet_repeats_exactly_across_daemons(router: Router, tmp_path: Path) -> None:  # noqa: F811
+    """Stepped, each daemon places the others' robots of the same tick before it steps it (one
+    clock): robots on two daemons that see and push each other give the same run twice, bit
+    for bit, and see each other from the first tick on. A daemon that does not step along (it
+    runs in real time) delays a step once, never hangs it."""
+    import time
+
+    endpoint = router[0]
+
+    def start(d: str, *more: str) -> subprocess.Popen[str]:
+        cmd = simd_command("-m", "client", "-e", endpoint, "--join", "--id", d, "--world", "empty", *more)
+        return _start(cmd, tmp_path / f"simd-{d}.log")
+
+    daemons = [start(d, "--lockstep") for d in ("a", "b")]
+    try:
+        with FleetClient(endpoint, timeout=10.0) as c:
+            assert wait_until(lambda: [d.id for d in c.daemons()] == ["a", "b"], 20.0)
+            names = [f"r{i}" for i in range(40)]
+            on_a = [n for n in names if owner(n, ["a", "b"]) == "a"][:3]
+            on_b = [n for n in names if owner(n, ["a", "b"]) == "b"][:3]
+            ring = [n for pair in zip(on_a, on_b, strict=True) for n in pair]  # a, b, a, b, ...
+            for k, n in enumerate(ring):  # six robots on a 0.6 m circle, facing its centre
+                angle = k * np.pi / 3
+                c.spawn(n, 0.6 * np.cos(angle), 0.6 * np.sin(angle), angle + np.pi)
+            first = c.step(6, observe=ring, packed=True, publish=False)
+            assert first.packed is not None
+            seen = observed_arrays(first.packed)
+            # robot 0 (on a) looks across the centre at robot 3 (on b; the empty floor has nothing
+            # else): its lidar 1.23 m from robot 3's centre, robot 3's front a little nearer
+            assert 1.1 < float(seen.ranges[0, 0]) < 1.23, seen.ranges[0, 0]
+
+            def run() -> tuple[bytes, bytes]:
+                c.reset(seed=3)
+                odom, scans = b"", b""
+                go = np.tile([0.2, 0.3], (6, 1))  # into each other, turning
+                for _ in range(8):
+                    reply = c.step(6, commands=(ring, go), observe=ring, packed=True, publish=False)
+                    assert reply.packed is not None and reply.packed.names == ring
+                    odom += reply.packed.odom
+                    scans += reply.packed.ranges
+                return odom, scans
+
+            once, again = run(), run()
+            assert once == again
+            rows = np.frombuffer(once[0], dtype="<f8").reshape(8, 6, 6)
+            assert np.hypot(rows[-1, :, 0], rows[-1, :, 1]).min() > 0.1  # they pushed, nobody drove through
+            late = start("c")  # joins in real time: it will not step along
+            daemons.append(late)
+            assert wait_until(lambda: [d.id for d in c.daemons()] == ["a", "b", "c"], 20.0)
+            t0 = time.monotonic()
+            reply = c.step(6, observe=ring, packed=True, publish=False)
+            assert reply.ticks_run == 6 and time.monotonic() - t0 < 8.0
     finally:
         for p in daemons:
             _stop(p)

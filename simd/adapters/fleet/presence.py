@@ -21,7 +21,7 @@ import zenoh
 
 from protocol import placement
 from protocol.codec import decode
-from protocol.control import DaemonInfo
+from protocol.control import Clock, DaemonInfo
 from protocol.errors import FleetError
 from protocol.keys import Keys
 from simd.adapters.fleet.requests import Pending, reply_format
@@ -55,6 +55,24 @@ def infos(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list[D
             except FleetError:
                 continue  # not a daemon of ours
     return found
+
+
+def fleet_tick(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> int | None:
+    """The tick the fleet's daemons are at (the latest of their clocks), None if none answers:
+    a daemon that joins starts its clock there, so that the fleet steps its ticks together."""
+    ticks = []
+    for reply in session.get(
+        f"{keys.clock}?format=msgpack",
+        timeout=timeout,
+        target=zenoh.QueryTarget.ALL,
+        consolidation=zenoh.ConsolidationMode.NONE,
+    ):
+        if reply.ok is not None:
+            try:
+                ticks.append(decode(reply.ok.payload.to_bytes(), Clock).tick)
+            except FleetError:
+                continue
+    return max(ticks) if ticks else None
 
 
 def refusal(
