@@ -139,10 +139,11 @@ class FleetClient:
         )
 
     def _query_all(
-        self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None
+        self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None, every: bool = False
     ) -> list[T]:
         """Every daemon's answer (a fleet shared by several daemons: docs/scale-out.md), once
-        all have answered; the first error when none answered well, as :meth:`_query` raises it."""
+        all have answered; the first error when none answered well (``every``: when any
+        refused), as :meth:`_query` raises it."""
         found: list[T] = []
         error: FleetError | None = None
         deadline = self.timeout if timeout is None else timeout
@@ -151,7 +152,7 @@ class FleetClient:
                 found.append(decode(reply.ok.payload.to_bytes(), reply_type))
             elif error is None:
                 error = self._error(key, reply, deadline)
-        if found:
+        if found and (error is None or not every):
             return found
         raise error if error is not None else self._unavailable(key)
 
@@ -280,7 +281,8 @@ class FleetClient:
         req = StepRequest(
             ticks=ticks, cmd_vel=cmds, commands=arrays, observe=list(observe), publish=publish, packed=packed
         )
-        replies = self._query_all(self.keys.step, req, StepReply, timeout)
+        # a daemon that refused did not step: the fleet is not where the caller thinks
+        replies = self._query_all(self.keys.step, req, StepReply, timeout, every=True)
         return replies[0] if len(replies) == 1 else _merge_steps(replies, req.observe)
 
     # -- motion ---------------------------------------------------------------------------
@@ -332,6 +334,19 @@ class FleetClient:
         sub = Subscription(
             self.session.liveliness().declare_subscriber(f"{self.keys.prefix}/*/alive", handler, history=True)
         )
+        self._subs.append(sub)
+        return sub
+
+    def on_daemons(self, callback: Callable[[str, bool], None]) -> Subscription:
+        """Call ``callback(daemon_id, alive)`` for the daemons serving the fleet now and as
+        they come and go (their ``P/daemons/<id>`` tokens): a daemon that dies, however, is
+        told within its zenoh lease (at once when its process ends)."""
+        head = self.keys.daemon("")
+
+        def handler(sample: zenoh.Sample) -> None:
+            callback(str(sample.key_expr)[len(head) :], sample.kind == zenoh.SampleKind.PUT)
+
+        sub = Subscription(self.session.liveliness().declare_subscriber(self.keys.daemon("*"), handler, history=True))
         self._subs.append(sub)
         return sub
 

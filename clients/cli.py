@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import queue
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -244,6 +245,8 @@ def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> in
 
 def _run_daemons(client: FleetClient, args: argparse.Namespace, plan: object) -> int:
     found = client.daemons()
+    if args.watch:
+        return _watch_daemons(client, args, [d.id for d in found])
     if args.json:
         _print_json(found)
         return EXIT_OK
@@ -256,6 +259,31 @@ def _run_daemons(client: FleetClient, args: argparse.Namespace, plan: object) ->
     for r in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(r, widths, strict=True)).rstrip(), flush=True)
     return EXIT_OK
+
+
+def _watch_daemons(client: FleetClient, args: argparse.Namespace, now: list[str]) -> int:
+    """The daemons there now, then one line (or JSON object) per daemon that joins or leaves."""
+    events: queue.SimpleQueue[tuple[str, bool]] = queue.SimpleQueue()
+    live = set(now)
+
+    def say(daemon_id: str, alive: bool) -> None:
+        at = time.strftime("%H:%M:%S")
+        if args.json:
+            _print_json({"time": time.time(), "daemon": daemon_id, "alive": alive})
+        else:
+            print(f"{at}  {daemon_id} {'joined' if alive else 'left: its robots left the fleet with it'}", flush=True)
+
+    if not args.json:
+        print(f"daemons: {', '.join(sorted(live)) or '(none)'}; watching (Ctrl-C to stop)", flush=True)
+    with client.on_daemons(lambda d, alive: events.put((d, alive))):
+        try:
+            while True:
+                daemon_id, alive = events.get()
+                if alive != (daemon_id in live):  # history repeats the ones already listed
+                    (live.add if alive else live.discard)(daemon_id)
+                    say(daemon_id, alive)
+        except KeyboardInterrupt:
+            return EXIT_OK
 
 
 def _duration(seconds: float) -> str:

@@ -93,7 +93,9 @@ def build_parser(
     add("delete", "delete robots by name or namespace").add_argument("names", nargs="+", metavar="NAME")
     add("list", "list the live robots with model, pose and velocity, in name order (burger_2 before burger_10)")
     add("world", "describe the loaded world")
-    add("daemons", "list the daemons that serve the fleet (id, world, host, pid, up since)")
+    add("daemons", "list the daemons that serve the fleet (id, world, host, pid, up since)").add_argument(
+        "--watch", action="store_true", help="then print a line as each daemon joins or leaves, until Ctrl-C"
+    )
     add("clock", "show the simulation clock")
     add("pause", "pause the simulation")
     add("resume", "resume a paused simulation")

@@ -5,6 +5,7 @@ real processes on loopback."""
 from __future__ import annotations
 
 import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from clients.api import observed_arrays
 from protocol import FleetError
 from protocol.placement import owner
 from tests.conftest import ROOT, simd_command
-from tests.scaleout.test_router import _start, _stop, router  # noqa: F401  (the router fixture)
+from tests.scaleout.test_router import _start, _stop, _wait_for, router  # noqa: F401  (the router fixture)
 
 Router = tuple[str, subprocess.Popen[str], Path]
 
@@ -65,7 +66,18 @@ def test_spawns_are_placed_by_name_and_the_fleet_is_one_list(
             c.delete("ghost")
         assert missing.value.code.value == "not_found"
         assert on_b not in [r.name for r in c.robots()]
-        _stop(daemons["b"])  # a daemon dies: its robots leave the fleet, its names go to the survivor
+        told: list[tuple[str, bool]] = []
+        c.on_daemons(lambda d, alive: told.append((d, alive)))
+        assert wait_until(lambda: sorted(told) == [("a", True), ("b", True)], 5.0), told  # those there now
+        watch_log = tmp_path / "watch.log"
+        watch = _start([sys.executable, "-m", "clients.cli", "daemons", "--watch", "-e", endpoint], watch_log)
+        try:
+            _wait_for(watch_log, "daemons: a, b; watching", watch)
+            _stop(daemons["b"])  # a daemon dies: its robots leave the fleet, its names go to the survivor
+            assert wait_until(lambda: ("b", False) in told, 15.0), told  # clients are told
+            _wait_for(watch_log, "b left: its robots left the fleet with it", watch)
+        finally:
+            _stop(watch)
         survivors = sorted(n for n in names if placed[n] == "a")
         assert wait_until(lambda: [d.id for d in c.daemons()] == ["a"], 15.0)
         assert [r.name for r in c.robots()] == survivors
@@ -157,6 +169,8 @@ def test_a_stepped_fleet_repeats_exactly_across_daemons(router: Router, tmp_path
     runs in real time) delays a step once, never hangs it."""
     import time
 
+    from protocol.control import Clock
+
     endpoint = router[0]
 
     def start(d: str, *more: str) -> subprocess.Popen[str]:
@@ -200,8 +214,11 @@ def test_a_stepped_fleet_repeats_exactly_across_daemons(router: Router, tmp_path
             daemons.append(late)
             assert wait_until(lambda: [d.id for d in c.daemons()] == ["a", "b", "c"], 20.0)
             t0 = time.monotonic()
-            reply = c.step(6, observe=ring, packed=True, publish=False)
-            assert reply.ticks_run == 6 and time.monotonic() - t0 < 8.0
+            ticks = [k.tick for k in c._query_all(c.keys.clock, None, Clock) if k.lockstep]
+            with pytest.raises(FleetError, match="paused") as refused:  # c said so; a and b stepped
+                c.step(6, observe=ring, packed=True, publish=False)
+            assert refused.value.code.value == "not_allowed" and time.monotonic() - t0 < 8.0
+            assert [k.tick for k in c._query_all(c.keys.clock, None, Clock) if k.lockstep] == [t + 6 for t in ticks]
     finally:
         for p in daemons:
             _stop(p)

@@ -135,12 +135,14 @@ class FleetAdapter:
     def _for_here(self, request: StepRequest) -> StepRequest:
         """A shared fleet's step as this daemon runs it: every daemon steps (the client waits
         for all of them), each commanding and observing its own robots; names alive on another
-        daemon are left to it, names alive nowhere stay (and are refused as unknown)."""
+        daemon are left to it; a name alive nowhere (yet: a robot spawned a moment ago on another
+        daemon may not have reached this one's membership) is left to the daemon it is placed
+        on, which runs it or refuses it as unknown."""
         assert self.members is not None
-        own, alive = self._own, self.members.alive
+        members, own = self.members, self._own
 
         def here(ns: str) -> bool:
-            return ns in own or not alive(ns)
+            return ns in own or (not members.alive(ns) and members.owner(ns) == self.daemon_id)
 
         commands = request.commands
         if commands is not None and not all(here(n) for n in commands.names):
