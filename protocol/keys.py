@@ -21,6 +21,7 @@ key                    declared by simd as         payload     reply / notes
 ``P/daemons``          queryable                   (none)      DaemonInfo, one reply a daemon
 ``P/daemons/<id>``     liveliness token            --          present while daemon ``<id>`` runs
 ``P/daemons/<id>/tick`` publisher, stepping only   DaemonTick  a shared fleet's daemons before each stepped tick
+``P/daemons/<id>/clock`` queryable                 (none)      Clock of daemon ``<id>`` alone (its healthcheck)
 =====================  ==========================  ==========  ======================================
 """
 
@@ -99,6 +100,11 @@ class Keys:
     def daemon(self, daemon_id: str) -> str:
         """The liveliness token of daemon ``daemon_id``."""
         return self._k("daemons", daemon_id)
+
+    def daemon_clock(self, daemon_id: str) -> str:
+        """The clock of daemon ``daemon_id`` alone (``P/clock`` is answered by any daemon of a
+        shared fleet): whether that daemon, its session and its tick loop are up."""
+        return self._k("daemons", daemon_id, "clock")
 
     def daemon_tick(self, daemon_id: str) -> str:
         """Where daemon ``daemon_id`` of a shared fleet puts its robots before each tick it

@@ -201,7 +201,8 @@ def write_state(argv: Sequence[str], path: str) -> None:
     listen = [local_endpoint(e) for e in (args.listen or [])]
     # a daemon in client mode is reached through the router it connects to
     connect = listen if listen and args.mode != "client" else list(args.connect or [])
-    state = {"connect": connect, "prefix": args.prefix, "pid": os.getpid()}
+    # a daemon sharing a fleet is asked for its own clock (any daemon answers the fleet's)
+    state = {"connect": connect, "prefix": args.prefix, "pid": os.getpid(), "id": args.id if args.join else None}
     try:
         tmp = Path(f"{path}.{os.getpid()}")
         tmp.write_text(json.dumps(state) + "\n")

@@ -2,7 +2,10 @@
 
 ``python -m simd.healthcheck`` exits 0 when ``<prefix>/clock`` answers within the timeout
 (2 s by default) and 1 otherwise. The clock is answered by the simulation thread, so this
-checks the whole daemon (session, queryables and the tick loop), not only its process.
+checks the whole daemon (session, queryables and the tick loop), not only its process. In a
+shared fleet (``simd --join``) any daemon answers ``<prefix>/clock``: there it asks
+``<prefix>/daemons/<id>/clock``, which only daemon ``<id>`` answers (``--id``, or the id the
+entrypoint recorded for a ``--join`` daemon).
 
 Where to ask, first match wins:
 
@@ -44,29 +47,36 @@ class Target:
     connect: list[str]
     prefix: str
     source: str
+    #: the daemon's id in a shared fleet: then its own clock is asked, not the fleet's
+    daemon: str | None = None
 
 
 def _split(value: str) -> list[str]:
     return [e for e in re.split(r"[,\s]+", value) if e]
 
 
-def resolve_target(connect: Sequence[str] | None, prefix: str | None, env: Mapping[str, str]) -> Target:
+def resolve_target(
+    connect: Sequence[str] | None, prefix: str | None, env: Mapping[str, str], daemon: str | None = None
+) -> Target:
     """Where the daemon is, by the rules in the module docstring."""
     if connect:
-        return Target(list(connect), prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "command line")
+        return Target(list(connect), prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "command line", daemon)
     state_file = env.get("SIMD_STATE_FILE", DEFAULT_STATE_FILE)
     try:
         state: Any = json.loads(Path(state_file).read_text())
         endpoints = [str(e) for e in state["connect"]]
         if endpoints:
-            return Target(endpoints, prefix or str(state["prefix"]), state_file)
-    except (OSError, ValueError, KeyError, TypeError):
+            shared = state.get("id")
+            return Target(
+                endpoints, prefix or str(state["prefix"]), state_file, daemon or (str(shared) if shared else None)
+            )
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
         pass
     if env.get("SIMD_MODE", "").strip() == "client" and env.get("SIMD_CONNECT"):
         endpoints = _split(env["SIMD_CONNECT"])
     else:
         endpoints = [local_endpoint(e) for e in _split(env.get("SIMD_LISTEN", "") or DEFAULT_LISTEN)]
-    return Target(endpoints, prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "environment")
+    return Target(endpoints, prefix or env.get("SIMD_PREFIX") or DEFAULT_PREFIX, "environment", daemon)
 
 
 def check(target: Target, timeout: float, config_file: str | None = None) -> tuple[bool, str]:
@@ -83,7 +93,7 @@ def check(target: Target, timeout: float, config_file: str | None = None) -> tup
         return False, f"cannot connect to {where}: {zenoh_error_text(e)}"
     try:
         left = max(0.2, timeout - (time.monotonic() - t0))
-        key = f"{target.prefix}/clock"
+        key = f"{target.prefix}/daemons/{target.daemon}/clock" if target.daemon else f"{target.prefix}/clock"
         for reply in session.get(f"{key}?format=json", timeout=left):
             if reply.ok is not None:
                 body = reply.ok.payload.to_bytes().decode("utf-8", "replace")
@@ -111,6 +121,11 @@ def main(argv: Sequence[str] | None = None, env: Mapping[str, str] | None = None
         help="daemon endpoint (default: from the entrypoint's state file or SIMD_LISTEN)",
     )
     p.add_argument("--prefix", help="key prefix (default: the daemon's, or SIMD_PREFIX, or fleet)")
+    p.add_argument(
+        "--id",
+        help="in a shared fleet (simd --join), ask daemon ID's own clock, not the fleet's (default: the id the "
+        "entrypoint recorded for a --join daemon)",
+    )
     p.add_argument("-c", "--config", metavar="FILE", help="zenoh client config (default: SIMD_HEALTH_CONFIG)")
     p.add_argument(
         "--timeout",
@@ -125,12 +140,12 @@ def main(argv: Sequence[str] | None = None, env: Mapping[str, str] | None = None
             timeout = float(environ.get("SIMD_HEALTH_TIMEOUT", "") or DEFAULT_TIMEOUT)
         except ValueError:
             timeout = DEFAULT_TIMEOUT
-    target = resolve_target(args.connect, args.prefix, environ)
+    target = resolve_target(args.connect, args.prefix, environ, args.id)
     config = args.config or environ.get("SIMD_HEALTH_CONFIG") or None
     if config and target.source == "environment":
         # nothing better known than the defaults: the config's own endpoints (a secured daemon's
         # health.json5 names its TLS port; the entrypoint cannot see inside simd's config file)
-        target = Target([], target.prefix, config)
+        target = Target([], target.prefix, config, target.daemon)
     try:
         ok, message = check(target, timeout, config)
     except Exception as e:  # a healthcheck reports, it does not crash with a traceback

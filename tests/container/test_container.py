@@ -253,3 +253,11 @@ def test_healthcheck_target(tmp_path: Path) -> None:
     assert healthcheck.resolve_target(None, None, {"SIMD_STATE_FILE": str(tmp_path / "no")}).connect == [
         "tcp/127.0.0.1:7447"
     ]
+    assert (
+        t.daemon is None and healthcheck.resolve_target(None, None, env).daemon is None
+    )  # one daemon: the fleet's clock
+    # a daemon sharing a fleet: the entrypoint records its id, and its own clock is asked
+    container_entry.write_state(["-m", "client", "-e", "tcp/router:7447", "--join", "--id", "a"], str(state))
+    t = healthcheck.resolve_target(None, None, env)
+    assert (t.connect, t.prefix, t.daemon) == (["tcp/router:7447"], "fleet", "a")
+    assert healthcheck.resolve_target(None, None, env, "b").daemon == "b"  # --id wins

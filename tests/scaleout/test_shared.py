@@ -83,6 +83,18 @@ def test_spawns_are_placed_by_name_and_the_fleet_is_one_list(
         assert [r.name for r in c.robots()] == survivors
         assert c.spawn(on_b, 20.0, 0.0).daemon == "a"
 
+    def health(daemon_id: str) -> tuple[int, str]:
+        cmd = [sys.executable, "-m", "simd.healthcheck", "-e", endpoint, "--id", daemon_id, "--timeout", "2"]
+        done = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=30)
+        return done.returncode, done.stdout
+
+    # each daemon's healthcheck asks its own clock: a's says healthy, b's (dead) does not,
+    # although the fleet's clock is still answered (by a)
+    code, said = health("a")
+    assert code == 0 and "fleet/daemons/a/clock answered" in said, said
+    code, said = health("b")
+    assert code == 1 and "no answer on fleet/daemons/b/clock" in said, said
+
 
 def test_a_daemon_that_cannot_join_is_refused(fleet: tuple[str, dict[str, subprocess.Popen[str]]]) -> None:
     endpoint, _ = fleet

@@ -27,6 +27,7 @@ import zenoh
 from protocol.codec import encode
 from protocol.control import (
     Clock,
+    ClockRequest,
     DeleteRequest,
     Observation,
     PackedCommands,
@@ -75,7 +76,9 @@ class FleetAdapter:
         self.publisher = Publisher(session, keys, spec)
         self.commands = CommandIntake(session, keys)
         self.outbox = Outbox("fleet-out")
-        self._queryables: list[Any] = requests.declare(session, keys, self._submit)
+        # this daemon's clock alone, under its id: what its healthcheck asks in a shared fleet
+        mine = [requests.Route(keys.daemon_clock(daemon_id), ClockRequest, acts=False)] if daemon_id else []
+        self._queryables: list[Any] = requests.declare(session, keys, self._submit, mine)
         engine.attach(self)
 
     # -- requests (zenoh threads) ---------------------------------------------------------------

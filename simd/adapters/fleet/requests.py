@@ -87,9 +87,9 @@ class Pending:
 
 
 def declare(
-    session: zenoh.Session, keys: Keys, submit: Callable[[Request, Pending], None]
+    session: zenoh.Session, keys: Keys, submit: Callable[[Request, Pending], None], extra: list[Route] | None = None
 ) -> list[zenoh.Queryable[Any]]:
-    """Declare every control queryable; well-formed requests go to ``submit``."""
+    """Declare every control queryable (and the ``extra`` routes); well-formed requests go to ``submit``."""
 
     def handler(route: Route) -> Callable[[zenoh.Query], None]:
         def on_query(query: zenoh.Query) -> None:
@@ -107,4 +107,4 @@ def declare(
 
         return on_query
 
-    return [session.declare_queryable(r.key, handler(r)) for r in routes(keys)]
+    return [session.declare_queryable(r.key, handler(r)) for r in [*routes(keys), *(extra or [])]]
