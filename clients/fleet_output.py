@@ -64,7 +64,7 @@ def teleop_command(namespace: str, args: argparse.Namespace, program: str = "fle
     if args.connect and args.connect != [DEFAULT_ENDPOINT]:
         for endpoint in args.connect:
             parts += ["-e", endpoint]
-    if args.mode != "client":
+    if args.mode and args.mode != "client":
         parts += ["-m", args.mode]
     for endpoint in args.listen or []:
         parts += ["-l", endpoint]

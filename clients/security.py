@@ -52,18 +52,25 @@ from protocol.names import check_name
 PORT = 7447
 VALID_DAYS = 365
 #: what may reach the daemon from each role (ingress), by message kind and key under the prefix
-READ_QUERIES = ["robots", "world", "clock"]
+READ_QUERIES = ["robots", "world", "clock", "daemons", "daemons/*/clock"]
 CONTROL_QUERIES = ["spawn", "delete", "sim/pause", "sim/resume", "sim/reset", "sim/step"]
 SUBSCRIBE = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
+#: every kind of message zenoh's access control tells apart
+EVERYTHING = ["put", "delete", "declare_subscriber", "query", "declare_queryable", "reply", "liveliness_token",
+              "declare_liveliness_subscriber", "liveliness_query"]  # fmt: skip
 
 
 class SecurityError(Exception):
     """A request fleet-security cannot carry out; the message is one line."""
 
 
-def acl(prefix: str, drivers: Sequence[str]) -> dict[str, Any]:
-    """The daemon's access control: deny by default; each role's ingress allowed explicitly;
-    everything the daemon itself sends (replies, topics, declarations) allowed out."""
+def acl(prefix: str, drivers: Sequence[str], daemons: Sequence[str] = ()) -> dict[str, Any]:
+    """The daemon's access control (or, for a fleet of ``daemons``, the router's): deny by
+    default; each role's ingress allowed explicitly; everything the daemon itself sends
+    (replies, topics, declarations) allowed out. Behind a router the daemons' users
+    (``daemon_<id>``) may send and receive anything under the prefix: they answer the fleet's
+    queries, publish its topics and its robots' tokens, and hear each other (spawn placement,
+    ghosts, the one clock)."""
     p = prefix
     rules: list[dict[str, Any]] = [
         {"id": "out", "permission": "allow", "flows": ["egress"],
@@ -99,11 +106,21 @@ def acl(prefix: str, drivers: Sequence[str]) -> dict[str, Any]:
         subjects.append({"id": user, "usernames": [user]})
         policies.append({"id": user, "rules": ["out", "read", "presence", f"drive-{ns}", f"watch-{ns}"],
                          "subjects": [user]})  # fmt: skip
+    if daemons:
+        rules += [
+            {"id": "daemon-in", "permission": "allow", "flows": ["ingress"], "messages": EVERYTHING,
+             "key_exprs": [f"{p}/**"]},
+            {"id": "daemon-out", "permission": "allow", "flows": ["egress"], "messages": EVERYTHING,
+             "key_exprs": [f"{p}/**"]},
+        ]  # fmt: skip
+        subjects.append({"id": "daemons", "usernames": [f"daemon_{d}" for d in daemons]})
+        policies.append({"id": "daemons", "rules": ["daemon-in", "daemon-out"], "subjects": ["daemons"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 
 
-def _certificates(hosts: Sequence[str]) -> tuple[bytes, bytes, bytes, bytes]:
-    """(CA certificate, CA key, daemon certificate, daemon key), PEM."""
+def _certificates(hosts: Sequence[str], common_name: str = "simd") -> tuple[bytes, bytes, bytes, bytes]:
+    """(CA certificate, CA key, the server's certificate, its key), PEM: the server is the
+    daemon, or the router of a fleet of daemons."""
     try:
         from cryptography import x509
         from cryptography.hazmat.primitives import hashes, serialization
@@ -156,7 +173,7 @@ def _certificates(hosts: Sequence[str]) -> tuple[bytes, bytes, bytes, bytes]:
     key = ec.generate_private_key(ec.SECP256R1())
     cert = (
         x509.CertificateBuilder()
-        .subject_name(name("simd"))
+        .subject_name(name(common_name))
         .issuer_name(ca.subject)
         .public_key(key.public_key())
         .serial_number(x509.random_serial_number())
@@ -184,10 +201,19 @@ def _json5(obj: dict[str, Any], comment: str) -> str:
 
 
 def init(directory: Path, robots: Sequence[str], hosts: Sequence[str], simd_dir: Path | None, port: int,
-         prefix: str = DEFAULT_PREFIX, force: bool = False) -> list[str]:  # fmt: skip
-    """Write the files (see the module docstring); the users made."""
+         prefix: str = DEFAULT_PREFIX, force: bool = False, daemons: Sequence[str] = ()) -> list[str]:  # fmt: skip
+    """Write the files (see the module docstring); the users made. With ``daemons``, a fleet
+    of daemons behind a router: the router's files instead of the daemon's, and one directory
+    per daemon."""
     for ns in robots:
         check_name(ns, "robot namespace")
+    for d in daemons:
+        try:
+            check_name(d, "daemon id")
+        except FleetError as e:
+            raise SecurityError(f"--daemons: {e.message}") from None
+    if len(set(daemons)) != len(daemons):
+        raise SecurityError("--daemons names a daemon twice")
     if not hosts:
         raise SecurityError("give at least one --host (the name or address clients connect to)")
     if directory.exists() and not directory.is_dir():
@@ -197,51 +223,62 @@ def init(directory: Path, robots: Sequence[str], hosts: Sequence[str], simd_dir:
     if not directory.parent.is_dir():
         raise SecurityError(f"{directory.parent} does not exist: create it first")
     # this machine's names too: simd's own healthcheck (and anyone on its host) connects through them
-    ca, ca_key, cert, key = _certificates(list(dict.fromkeys([*hosts, "localhost", "127.0.0.1"])))
+    server = "router" if daemons else "simd"  # who listens: the daemon, or the router of a fleet
+    ca, ca_key, cert, key = _certificates(list(dict.fromkeys([*hosts, "localhost", "127.0.0.1"])),
+                                          "fleet-router" if daemons else "simd")  # fmt: skip
     directory.mkdir(exist_ok=True)
     here = directory.resolve()
-    daemon_dir = directory / "simd"  # the daemon's own files, apart: they are all a container mounts
-    daemon_dir.mkdir(exist_ok=True)
-    where = simd_dir or daemon_dir.resolve()  # where simd finds them (in a container: where they are mounted)
+    server_dir = directory / server  # the server's own files, apart: they are all a container mounts
+    server_dir.mkdir(exist_ok=True)
+    where = (None if daemons else simd_dir) or server_dir.resolve()  # where it finds them (a container: its mount)
     users = ["operator", "observer", *(f"driver_{ns}" for ns in robots)]
-    passwords = {u: secrets.token_urlsafe(18) for u in users}
+    passwords = {u: secrets.token_urlsafe(18) for u in [*users, *(f"daemon_{d}" for d in daemons)]}
     _write(directory / "ca.pem", ca)
     _write(directory / "ca-key.pem", ca_key, private=True)
-    _write(daemon_dir / "ca.pem", ca)
-    _write(daemon_dir / "simd.pem", cert)
-    _write(daemon_dir / "simd-key.pem", key, private=True)
-    _write(daemon_dir / "users.txt", "".join(f"{u}:{pw}\n" for u, pw in passwords.items()), private=True)
-    tls_server = {"root_ca_certificate": str(where / "ca.pem"), "listen_certificate": str(where / "simd.pem"),
-                  "listen_private_key": str(where / "simd-key.pem")}  # fmt: skip
-    daemon = {
-        "mode": "peer",
+    _write(server_dir / "ca.pem", ca)
+    _write(server_dir / f"{server}.pem", cert)
+    _write(server_dir / f"{server}-key.pem", key, private=True)
+    _write(server_dir / "users.txt", "".join(f"{u}:{pw}\n" for u, pw in passwords.items()), private=True)
+    tls_server = {"root_ca_certificate": str(where / "ca.pem"), "listen_certificate": str(where / f"{server}.pem"),
+                  "listen_private_key": str(where / f"{server}-key.pem")}  # fmt: skip
+    listener = {
+        "mode": "router" if daemons else "peer",
         "listen": {"endpoints": [f"tls/0.0.0.0:{port}"]},
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"tls": tls_server}, "auth": {"usrpwd": {"dictionary_file": str(where / "users.txt")}}},
-        "access_control": acl(prefix, robots),
+        "access_control": acl(prefix, robots, daemons),
     }
-    _write(daemon_dir / "simd.json5", _json5(daemon, "simd -c simd.json5: TLS on every link, user/password, access "
-                                            "control (made by fleet-security init)"), private=True)  # fmt: skip
-    for u in users:
-        client = {
+    how = "fleet-router -c router.json5" if daemons else "simd -c simd.json5"
+    _write(server_dir / f"{server}.json5", _json5(listener, f"{how}: TLS on every link, user/password, access "
+                                                  "control (made by fleet-security init)"), private=True)  # fmt: skip
+
+    def client(user: str, ca_path: Path, endpoint: str) -> dict[str, Any]:
+        return {
             "mode": "client",
-            "connect": {"endpoints": [f"tls/{hosts[0]}:{port}"]},
+            "connect": {"endpoints": [endpoint]},
             "scouting": {"multicast": {"enabled": False}},
-            "transport": {"link": {"tls": {"root_ca_certificate": str(here / "ca.pem")}},
-                          "auth": {"usrpwd": {"user": u, "password": passwords[u]}}},
+            "transport": {"link": {"tls": {"root_ca_certificate": str(ca_path)}},
+                          "auth": {"usrpwd": {"user": user, "password": passwords[user]}}},
         }  # fmt: skip
-        _write(
-            directory / f"{u}.json5", _json5(client, f"fleetsim client as {u}: fleet -c {u}.json5 ..."), private=True
-        )
-    health = {
-        "mode": "client",
-        "connect": {"endpoints": [f"tls/localhost:{port}"]},
-        "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"tls": {"root_ca_certificate": str(where / "ca.pem")}},
-                      "auth": {"usrpwd": {"user": "observer", "password": passwords["observer"]}}},
-    }  # fmt: skip
-    _write(daemon_dir / "health.json5", _json5(health, "simd's healthcheck beside it (SIMD_HEALTH_CONFIG): observer, "
-                                              "through localhost"), private=True)  # fmt: skip
+
+    for u in users:
+        conf = client(u, here / "ca.pem", f"tls/{hosts[0]}:{port}")
+        _write(directory / f"{u}.json5", _json5(conf, f"fleetsim client as {u}: fleet -c {u}.json5 ..."), private=True)
+    for d in daemons:  # each daemon a client of the router, as its own user
+        mine = directory / f"simd_{d}"
+        mine.mkdir(exist_ok=True)
+        at = simd_dir or mine.resolve()
+        _write(mine / "ca.pem", ca)
+        conf = client(f"daemon_{d}", at / "ca.pem", f"tls/{hosts[0]}:{port}")
+        said = f"simd -c simd.json5 --join --id {d}: daemon {d} of the fleet, through the router (fleet-security init)"
+        _write(mine / "simd.json5", _json5(conf, said), private=True)
+        health = client("observer", at / "ca.pem", f"tls/{hosts[0]}:{port}")
+        _write(mine / "health.json5", _json5(health, f"daemon {d}'s healthcheck (SIMD_HEALTH_CONFIG, --id {d}): "
+                                             "observer, through the router"), private=True)  # fmt: skip
+    if not daemons:
+        health = client("observer", where / "ca.pem", f"tls/localhost:{port}")
+        _write(server_dir / "health.json5", _json5(health, "simd's healthcheck beside it (SIMD_HEALTH_CONFIG): "
+                                                   "observer, through localhost"), private=True)  # fmt: skip
     return users
 
 
@@ -259,6 +296,9 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--simd-dir", metavar="PATH",
                    help="where simd will find DIR/simd, e.g. /security when it is mounted there in a container "
                         "(default: its absolute path)")  # fmt: skip
+    i.add_argument("--daemons", default="", metavar="ID,...",
+                   help="a fleet of daemons behind fleet-router (simd --join --id ID): the router's files and one "
+                        "directory per daemon instead of the daemon's (docs/security.md)")  # fmt: skip
     i.add_argument("--force", action="store_true", help="replace the files of a non-empty DIR")
     return p
 
@@ -275,7 +315,8 @@ def main(argv: list[str] | None = None) -> int:
         simd_dir = Path(args.simd_dir) if args.simd_dir else None
         if simd_dir is not None and not simd_dir.is_absolute():
             raise SecurityError(f"--simd-dir must be an absolute path, got {args.simd_dir}")
-        users = init(Path(args.directory), robots, hosts, simd_dir, args.port, args.prefix, args.force)
+        daemons = [x.strip() for x in args.daemons.split(",") if x.strip()]
+        users = init(Path(args.directory), robots, hosts, simd_dir, args.port, args.prefix, args.force, daemons)
     except SecurityError as e:
         print(f"fleet-security: error: {e}", file=sys.stderr)
         return 2
@@ -283,15 +324,28 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fleet-security: error: --robots: {e.message}", file=sys.stderr)
         return 2
     d = args.directory
-    print(f"fleet-security: wrote a CA, simd's certificate for {', '.join(hosts)}, {len(users)} users and their "
+    server = "the router" if daemons else "simd"
+    print(f"fleet-security: wrote a CA, {server}'s certificate for {', '.join(hosts)}, {len(users)} users and their "
           f"configs to {d}/")  # fmt: skip
-    print(f"  simd -c {d}/simd/simd.json5")
+    if daemons:
+        print(f"  fleet-router -c {d}/router/router.json5")
+        for i in daemons:
+            print(f"  simd -c {d}/simd_{i}/simd.json5 --join --id {i}")
+    else:
+        print(f"  simd -c {d}/simd/simd.json5")
     print(f"  fleet -c {d}/operator.json5 spawn tb3_0 -2 -0.5        # operator: everything")
     print(f"  fleet-view -c {d}/observer.json5                       # observer: read only")
     for ns in robots:
         print(f"  fleet-teleop {ns} -c {d}/driver_{ns}.json5")
-    print(f"  give each user ca.pem and their own .json5 (it holds their password); {d}/simd/ is the daemon's alone, "
-          f"{d}/ca-key.pem best kept offline")  # fmt: skip
+    own = (
+        f"{d}/router/ is the router's alone, each {d}/simd_<id>/ its daemon's"
+        if daemons
+        else (f"{d}/simd/ is the daemon's alone")
+    )
+    print(
+        f"  give each user ca.pem and their own .json5 (it holds their password); {own}, {d}/ca-key.pem best kept "
+        "offline"
+    )
     return 0
 
 

@@ -36,8 +36,11 @@ class ZenohOptions:
 
     @classmethod
     def from_args(cls, args: argparse.Namespace) -> ZenohOptions:
+        """The flags' options; the mode is ``-m``'s, else the config file's own, else the
+        program's default (a daemon made a client of a router by its file stays one)."""
+        mode = str(args.mode or _file_mode(args.config) or getattr(args, "zenoh_default_mode", "client"))
         return cls(
-            mode=args.mode,
+            mode=mode,
             listen=list(args.listen or []),
             connect=list(args.connect or []),
             config_file=args.config,
@@ -105,6 +108,19 @@ class ZenohOptions:
         return conf
 
 
+def _file_mode(config_file: str | None) -> str | None:
+    """The ``mode`` a zenoh config file sets, if it can be read and sets one."""
+    if not config_file:
+        return None
+    import zenoh
+
+    try:
+        mode = json.loads(zenoh.Config.from_file(config_file).get_json("mode"))
+    except (zenoh.ZError, ValueError):
+        return None
+    return mode if mode in ("peer", "client", "router") else None
+
+
 def _loopback(endpoint: str) -> bool:
     """Whether ``proto/host:port`` only accepts connections from this machine."""
     import ipaddress
@@ -139,12 +155,14 @@ def exposed_without_authentication(conf: zenoh.Config, mode: str) -> list[str]:
 def add_zenoh_args(parser: argparse.ArgumentParser, *, server: bool, default_mode: str | None = None) -> None:
     """Add the zenoh flags. A server (simd) listens by default; a client connects."""
     g = parser.add_argument_group("zenoh")
+    mode = default_mode or ("peer" if server else "client")
+    parser.set_defaults(zenoh_default_mode=mode)
     g.add_argument(
         "-m",
         "--mode",
         choices=("peer", "client", "router"),
-        default=default_mode or ("peer" if server else "client"),
-        help="zenoh session mode (default: %(default)s)",
+        default=None,
+        help=f"zenoh session mode (default: {mode}, or the -c file's own)",
     )
     if server:
         g.add_argument(

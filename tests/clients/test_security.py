@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+import msgspec
 import pytest
 import zenoh
 
@@ -243,8 +244,74 @@ def test_fleet_security_init_refuses_what_it_cannot_do(tmp_path: Path) -> None:
         ((str(tmp_path / "c"), "--simd-dir", "relative"), "absolute"),
         ((str(tmp_path / "no" / "such" / "d"),), "does not exist"),
         ((str(tmp_path / "e"), "--port", "0"), "--port"),
+        ((str(tmp_path / "f"), "--daemons", "a,a"), "twice"),
+        ((str(tmp_path / "g"), "--daemons", "a,b/c"), "--daemons"),
     ]:
         p = run(*args)
         assert p.returncode == 2 and p.stderr.count("\n") == 1 and message in p.stderr, p.stderr
     assert (tmp_path / "a" / "simd" / "users.txt").read_bytes() == before
-    assert not (tmp_path / "b").exists() and not (tmp_path / "c").exists()
+    for never in "bcfg":
+        assert not (tmp_path / never).exists(), never
+
+
+def test_a_fleet_of_daemons_behind_a_secured_router(tmp_path: Path) -> None:
+    """``fleet-security init --daemons a,b``: the router checks everyone (TLS, users, access
+    control); the daemons are its clients as users of their own and do everything a shared
+    fleet needs through it (placement, one list, one clock); users keep their roles; nobody
+    but a daemon answers the fleet or puts a daemon's tick."""
+    from clients.api import observed_arrays
+    from protocol.control import DaemonTick
+    from protocol.placement import owner
+
+    d = tmp_path / "fleet"
+    port = free_port()
+    init(d, ["tb3_0"], ["localhost", "127.0.0.1"], None, port, daemons=["a", "b"])
+    assert not (d / "simd").exists() and (d / "router" / "router.json5").exists()
+    logs = {k: (tmp_path / f"{k}.log").open("w") for k in ("router", "a", "b")}
+    procs = [subprocess.Popen([sys.executable, "-m", "simd.router", "-c", str(d / "router" / "router.json5")],
+                              stdout=logs["router"], stderr=subprocess.STDOUT, text=True, cwd=ROOT)]  # fmt: skip
+    for daemon in ("a", "b"):
+        cmd = simd_command("-c", str(d / f"simd_{daemon}" / "simd.json5"), "--join", "--id", daemon, "--lockstep",
+                           "--world", "empty")  # fmt: skip
+        procs.append(subprocess.Popen(cmd, stdout=logs[daemon], stderr=subprocess.STDOUT, text=True, cwd=ROOT))
+    secured = Secured(d, port, procs[0])
+    try:
+        with secured.client("operator") as op, secured.client("observer") as ob:
+            deadline = time.monotonic() + 30
+            while [x.id for x in op.daemons()] != ["a", "b"]:
+                assert time.monotonic() < deadline and all(p.poll() is None for p in procs), [
+                    (tmp_path / f"{k}.log").read_text() for k in logs
+                ]
+                time.sleep(0.2)
+            names = [f"r{i}" for i in range(6)]
+            for i, n in enumerate(names):
+                assert op.spawn(n, float(i), 0.0).daemon == owner(n, ["a", "b"])
+            assert [(r.name, r.daemon) for r in ob.robots()] == [(n, owner(n, ["a", "b"])) for n in names]
+            assert [x.id for x in ob.daemons()] == ["a", "b"]  # the observer reads the daemons too
+            ticks: list[DaemonTick] = []
+            op.session.declare_subscriber(
+                "fleet/daemons/*/tick",
+                lambda s: ticks.append(msgspec.msgpack.decode(s.payload.to_bytes(), type=DaemonTick)),
+            )
+            rogue = ob.session
+            fake = rogue.declare_queryable("fleet/spawn", lambda q: q.reply("fleet/spawn", b"\x80"))
+            time.sleep(0.5)
+            evil = DaemonTick(daemon="evil", tick=0, namespaces=["ghost"], models=["burger"], poses=bytes(24))
+            rogue.put("fleet/daemons/evil/tick", msgspec.msgpack.encode(evil))
+            reply = op.step(6, observe=names, packed=True, publish=False)  # both daemons, one clock, through the router
+            assert reply.packed is not None and observed_arrays(reply.packed).names == names
+            assert {t.daemon for t in ticks} == {"a", "b"}  # the daemons' ticks, and not the rogue's
+            assert op.spawn("r9", 9.0, 0.0).name == "r9"  # the daemons answer, not the fake
+            fake.undeclare()  # (its own session would hear it)
+            _refused(lambda: ob.spawn("intruder", -2.0, -2.0))
+        health = subprocess.run([sys.executable, "-m", "simd.healthcheck", "-c", str(d / "simd_a" / "health.json5"),
+                                 "--id", "a"], capture_output=True, text=True, cwd=ROOT, timeout=60)  # fmt: skip
+        assert health.returncode == 0 and "fleet/daemons/a/clock answered" in health.stdout, health.stdout
+    finally:
+        for p in procs:
+            p.terminate()
+            p.wait(10)
+        for f in logs.values():
+            f.close()
+    for k in ("a", "b"):
+        assert "warning" not in (tmp_path / f"{k}.log").read_text()  # clients of the router: nothing listens
