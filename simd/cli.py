@@ -309,7 +309,7 @@ def main(argv: list[str] | None = None) -> int:
         if members is not None:
             from simd.adapters.fleet.ghosts import GhostFeed
 
-            ghost_feed = GhostFeed(session, keys, members, adapter.own_namespaces)
+            ghost_feed = GhostFeed(session, keys, members)
             engine.ghost_source = ghost_feed
         presence = Presence(session, keys, args.id, world.name, shared=args.join)
         if ros_session is not None:

@@ -55,6 +55,10 @@ class Physics:
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
         self._rid_of_body: dict[int, int] = {}  # pymunk's body id -> robot id (Body.id is slow to read)
         self._ghosts: dict[str, pymunk.Body] = {}  # robots simulated elsewhere, by namespace
+        self._ghost_key_of_body: dict[int, str] = {}
+        self._ghost_order: dict[str, int] = {}  # namespace -> its index in the caller's ghost columns
+        self._ghost_rows = np.zeros(0, dtype=np.int64)  # pymunk's iteration order -> ghost index (-1: not one)
+        self._ghost_now = np.zeros((0, 3))  # the ghosts' poses after the last step, in ghost order
         self._order_dirty = True  # a robot was added or removed since the rows were computed
         self._rows_cache: tuple[npt.NDArray[np.int64], npt.NDArray[np.bool_]] = (
             np.zeros(0, dtype=np.int64),
@@ -126,32 +130,47 @@ class Physics:
         self._rid_of_body[body.id] = rid
         self._order_dirty = True
 
-    def set_ghost(self, key: str, model: RobotModel, x: float, y: float, yaw: float) -> None:
-        """Place (adding it first if new) a robot simulated elsewhere: a kinematic body with the
-        model's footprint, which this world's robots bump into but cannot push."""
-        body = self._ghosts.get(key)
-        if body is None:
-            body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
-            shapes = []
-            for x0, x1, y0, y1 in model.collision_boxes():
-                s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
-                s.friction = 0.0
-                s.collision_type = _ROBOT
-                shapes.append(s)
-            body.position = (x, y)
-            body.angle = yaw
-            self.space.add(body, *shapes)
-            self._ghosts[key] = body
-            self._order_dirty = True
-        else:
-            body.position = (x, y)
-            body.angle = yaw
+    def add_ghost(self, key: str, model: RobotModel, x: float, y: float, yaw: float) -> None:
+        """Add a robot simulated elsewhere: a kinematic body with the model's footprint, which
+        this world's robots bump into but cannot push."""
+        body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
+        shapes = []
+        for x0, x1, y0, y1 in model.collision_boxes():
+            s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+            s.friction = 0.0
+            s.collision_type = _ROBOT
+            shapes.append(s)
+        body.position = (x, y)
+        body.angle = yaw
+        self.space.add(body, *shapes)
+        self._ghosts[key] = body
+        self._ghost_key_of_body[body.id] = key
+        self._order_dirty = True
+
+    def place_ghost(self, key: str, x: float, y: float, yaw: float) -> None:
+        """Teleport a ghost (it jumped: its daemon reset it, or its poses came late)."""
+        body = self._ghosts[key]
+        body.position = (x, y)
+        body.angle = yaw
+        body.velocity = (0.0, 0.0)
+        body.angular_velocity = 0.0
         self.space.reindex_shapes_for_body(body)
 
     def remove_ghost(self, key: str) -> None:
         body = self._ghosts.pop(key)
+        del self._ghost_key_of_body[body.id]
         self.space.remove(body, *body.shapes)
         self._order_dirty = True
+
+    def order_ghosts(self, keys: list[str]) -> None:
+        """The order of the caller's ghost columns (every ghost named once)."""
+        self._ghost_order = {k: i for i, k in enumerate(keys)}
+        self._order_dirty = True
+        self._ghost_now = np.array([(*self._ghosts[k].position, self._ghosts[k].angle) for k in keys]).reshape(-1, 3)
+
+    def ghost_poses(self) -> npt.NDArray[np.float64]:
+        """The ghosts' poses (x, y, yaw rows, in the order of ``order_ghosts``) as the last step left them."""
+        return self._ghost_now
 
     def remove_robot(self, rid: int) -> None:
         body = self._bodies.pop(rid)
@@ -181,7 +200,10 @@ class Physics:
             ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
             row_of_rid = {rid: row for row, rid in enumerate(rids.tolist())}
             rid_of_body = self._rid_of_body
-            rows = np.array([row_of_rid.get(rid_of_body.get(i, -1), -1) for i in ids.tolist()], dtype=np.int64)
+            id_list = ids.tolist()
+            rows = np.array([row_of_rid.get(rid_of_body.get(i, -1), -1) for i in id_list], dtype=np.int64)
+            key_of, order = self._ghost_key_of_body, self._ghost_order
+            self._ghost_rows = np.array([order.get(key_of.get(i, ""), -1) for i in id_list], dtype=np.int64)
             self._rows_cache = (rows, rows >= 0)
             self._rows_n = len(rids)
             self._n_iter = len(ids)
@@ -194,8 +216,17 @@ class Physics:
             self._order_dirty = False
         return self._rows_cache
 
-    def step(self, rids: npt.NDArray[np.int64], vx: F64, vy: F64, w: F64, dt: float) -> None:
-        """Set each robot's world velocity (rows aligned with ``rids``) and advance ``dt``."""
+    def step(
+        self,
+        rids: npt.NDArray[np.int64],
+        vx: F64,
+        vy: F64,
+        w: F64,
+        dt: float,
+        ghost_v: npt.NDArray[np.float64] | None = None,
+    ) -> None:
+        """Set each robot's world velocity (rows aligned with ``rids``) and each ghost's
+        (``ghost_v``: vx, vy, w rows in ghost order; none: they stand still) and advance ``dt``."""
         rows, ok = self._rows(rids)
         if self._n_iter:
             out = self._velocities
@@ -207,6 +238,10 @@ class Physics:
                 out[ok, 0] = vx[r]
                 out[ok, 1] = vy[r]
                 out[ok, 2] = w[r]
+            if self._ghost_order:
+                g = self._ghost_rows
+                is_ghost = g >= 0
+                out[is_ghost] = 0.0 if ghost_v is None else ghost_v[g[is_ghost]]
             pymunk.batch.set_space_bodies(self.space, _SET_FIELDS, self._write_buf)
         h = dt / self.substeps
         for _ in range(self.substeps):
@@ -215,13 +250,19 @@ class Physics:
     def poses(self, rids: npt.NDArray[np.int64]) -> tuple[F64, F64, F64]:
         """Positions and headings of the robots, rows aligned with ``rids``."""
         n = len(rids)
-        if not n:
+        if not n and not self._ghost_order:
             return np.zeros(0), np.zeros(0), np.zeros(0)
         rows, ok = self._rows(rids)
         buf = self._read_buf
         buf.clear()
         pymunk.batch.get_space_bodies(self.space, _GET_FIELDS, buf)
         data = np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(-1, 3)
+        if self._ghost_order:
+            g = self._ghost_rows
+            is_ghost = g >= 0
+            now = np.empty((len(self._ghost_order), 3))
+            now[g[is_ghost]] = data[is_ghost]
+            self._ghost_now = now
         if self._in_order:
             return data[:n, 0].copy(), data[:n, 1].copy(), data[:n, 2].copy()
         x = np.zeros(n)

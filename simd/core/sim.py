@@ -22,6 +22,7 @@ from protocol.control import SpawnRequest
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
 from simd.core import drive, sensor_model
+from simd.core.ghosts import GhostColumns, Ghosts
 from simd.core.lidar import LidarSpec, StaticScene, cast, outline_segments
 from simd.core.models import MODELS, RobotModel
 from simd.core.physics import Physics
@@ -92,10 +93,8 @@ class Simulation:
         self._phase_load = [0] * self.config.scan_every
         self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
         self._last_scans: Future[F32] | None = None
-        #: robots simulated elsewhere (another daemon of a shared fleet), seen and felt here:
-        #: namespace -> (model, x, y, yaw); their outlines join the lidar's robot outlines
-        self.ghosts: dict[str, tuple[RobotModel, float, float, float]] = {}
-        self._ghost_columns: tuple[F64, F64, F64, I64, F64] | None = None
+        #: robots simulated elsewhere (another daemon of a shared fleet), seen and felt here
+        self._ghosts = Ghosts(self.physics)
 
     # -- queries ----------------------------------------------------------------------
 
@@ -313,37 +312,25 @@ class Simulation:
 
     # -- robots simulated elsewhere -------------------------------------------------------
 
-    def set_ghosts(self, ghosts: Mapping[str, tuple[str, float, float, float]]) -> None:
+    def set_ghosts(self, ghosts: Mapping[str, tuple[str, float, float, float]] | GhostColumns) -> None:
         """The robots of the other daemons of a shared fleet, at their latest known poses
-        (namespace -> (model name, x, y, yaw)): kinematic bodies this world's robots bump into,
-        outlines its lidar sees. Ghosts not named again leave; unknown models are left out."""
-        for key in [k for k in self.ghosts if k not in ghosts]:
-            del self.ghosts[key]
-            self.physics.remove_ghost(key)
-        for key, (model_name, x, y, yaw) in ghosts.items():
-            model = MODELS.get(model_name)
-            if model is None or not (math.isfinite(x) and math.isfinite(y) and math.isfinite(yaw)):
-                continue
-            self.ghosts[key] = (model, x, y, yaw)
-            self.physics.set_ghost(key, model, x, y, yaw)
-        if not self.ghosts:
-            self._ghost_columns = None
-            return
-        rows = list(self.ghosts.values())
-        self._ghost_columns = (
-            np.array([g[1] for g in rows]),
-            np.array([g[2] for g in rows]),
-            np.array([g[3] for g in rows]),
-            -1 - np.arange(len(rows), dtype=np.int64),  # never a robot id of this world
-            np.stack([g[0].outline for g in rows]),
-        )
+        (namespace -> (model name, x, y, yaw), or as columns): kinematic bodies this world's
+        robots bump into, outlines its lidar sees (simd/core/ghosts.py). Ghosts not named
+        again leave; unknown models and poses that are not finite are left out."""
+        self._ghosts.update(ghosts if isinstance(ghosts, GhostColumns) else GhostColumns.from_mapping(ghosts))
+
+    @property
+    def ghosts(self) -> dict[str, tuple[RobotModel, float, float, float]]:
+        """The ghosts now: namespace -> (model, x, y, yaw)."""
+        return self._ghosts.as_dict()
 
     def _with_ghosts(self) -> tuple[F64, F64, F64, I64, F64]:
         """The robots' columns the lidar sees: this world's robots, then the ghosts."""
         t = self.robots
-        if self._ghost_columns is None:
+        columns = self._ghosts.lidar_columns()
+        if columns is None:
             return t.x, t.y, t.yaw, t.rid, t.outline
-        gx, gy, gyaw, grid, gout = self._ghost_columns
+        gx, gy, gyaw, grid, gout = columns
         return (np.concatenate([t.x, gx]), np.concatenate([t.y, gy]), np.concatenate([t.yaw, gyaw]),
                 np.concatenate([t.rid, grid]), np.concatenate([t.outline, gout]))  # fmt: skip
 
@@ -355,7 +342,7 @@ class Simulation:
         dt = cfg.dt
         t = self.robots
         v, w, dx, dy = drive.advance(self.tick, cfg.cmd_timeout, dt, t)
-        self.physics.step(t.rid, dx / dt, dy / dt, w, dt)
+        self.physics.step(t.rid, dx / dt, dy / dt, w, dt, self._ghosts.velocities(dt))
         x, y, yaw = self.physics.poses(t.rid)
         old_x, old_y, old_yaw = t.x, t.y, t.yaw
         # reported twist: the wheels' when motion was free, the achieved motion otherwise

@@ -294,7 +294,7 @@ class Engine:
         sim.command_many(self._gather_commands())
         self._pending_commands = {}
         if self.ghost_source is not None:
-            ghosts = self.ghost_source.take(self._own_robots() if self._steps else None)
+            ghosts = self.ghost_source.take(self._own_robots(), stepping=bool(self._steps))
             if ghosts is not None:
                 sim.set_ghosts(ghosts)
         if self._steps:  # a step's own commands hold for all of its ticks

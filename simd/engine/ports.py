@@ -24,6 +24,7 @@ import numpy.typing as npt
 
 from protocol.control import Clock
 from protocol.errors import FleetError
+from simd.core.ghosts import GhostColumns
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 
@@ -135,9 +136,6 @@ class Adapter(Protocol):
         """Stop: undeclare, join threads. Called once, on the thread that ran the engine."""
 
 
-Ghosts = Mapping[str, tuple[str, float, float, float]]
-
-
 @dataclass(frozen=True)
 class OwnRobots:
     """This daemon's robots as a step is about to run tick ``tick + 1``: true poses, rows of
@@ -154,11 +152,10 @@ class OwnRobots:
 class GhostSource(Protocol):
     """The robots simulated elsewhere (the other daemons of a shared fleet), asked before each tick."""
 
-    def take(self, stepping: OwnRobots | None) -> Ghosts | None:
-        """Their poses (namespace -> (model, x, y, yaw)) when they changed, else None.
-        ``stepping`` is given while a step runs: then every daemon that steps hears of this
-        one's robots and the answer is the others' of the same tick (one clock); otherwise
-        the latest they published (real time)."""
+    def take(self, own: OwnRobots, stepping: bool) -> GhostColumns | None:
+        """Hear of this daemon's robots; return the others' when they changed, else None:
+        while a step runs (``stepping``) those of the same tick (one clock), otherwise the
+        latest (real time)."""
         ...
 
     def forget(self) -> None:
