@@ -94,7 +94,7 @@ class Simulation:
         self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
         self._last_scans: Future[F32] | None = None
         #: robots simulated elsewhere (another daemon of a shared fleet), seen and felt here
-        self._ghosts = Ghosts(self.physics)
+        self._ghosts = Ghosts(self.physics, world.bounds)
 
     # -- queries ----------------------------------------------------------------------
 
@@ -342,7 +342,7 @@ class Simulation:
         dt = cfg.dt
         t = self.robots
         v, w, dx, dy = drive.advance(self.tick, cfg.cmd_timeout, dt, t)
-        self.physics.step(t.rid, dx / dt, dy / dt, w, dt, self._ghosts.velocities(dt))
+        self.physics.step(t.rid, dx / dt, dy / dt, w, dt, self._ghosts.velocities(dt, t.x, t.y))
         x, y, yaw = self.physics.poses(t.rid)
         old_x, old_y, old_yaw = t.x, t.y, t.yaw
         # reported twist: the wheels' when motion was free, the achieved motion otherwise

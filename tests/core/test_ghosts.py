@@ -42,9 +42,10 @@ def test_a_ghost_is_seen_felt_and_left_out_of_the_fleet() -> None:
 
 
 def test_ghosts_as_columns_move_by_velocity_and_push_what_they_meet() -> None:
-    """A fleet's thousands of ghosts change pose every tick: as columns, the same bodies are
-    driven to their new poses (a robot in the way is pushed, as on the ghost's own daemon),
-    and only a jump is a teleport."""
+    """A fleet's thousands of ghosts change pose every tick: as columns, and only those near
+    this world's robots are bodies in its physics; a near one is driven to its new pose each
+    tick (a robot in the way is pushed, as on the ghost's own daemon), and only a jump is a
+    teleport. The lidar sees them all."""
     from simd.core.ghosts import GhostColumns
 
     sim = Simulation(load_world("empty"), SimConfig(noise=False, lidar_thread=False, cmd_timeout=0))
@@ -53,27 +54,30 @@ def test_ghosts_as_columns_move_by_velocity_and_push_what_they_meet() -> None:
     far = np.arange(300, dtype=np.float64)
 
     def ghosts(x0: float) -> GhostColumns:
-        xs = np.concatenate([[x0, 5.0], 20.0 + far % 20])
-        ys = np.concatenate([[0.0, 5.0], 20.0 + far // 20])
+        xs = np.concatenate([[x0, 3.0], -3.0 + (far % 20) * 0.3])
+        ys = np.concatenate([[0.0, 0.0], 1.0 + (far // 20) * 0.3])
         return GhostColumns(names, ["burger"] * len(names), xs, ys, np.zeros(len(names)))
 
-    sim.set_ghosts(ghosts(0.6))
+    sim.set_ghosts(ghosts(1.5))
     sim.step()
-    bodies = dict(sim.physics._ghosts)
-    assert len(bodies) == len(names)
-    x0 = 0.6
-    for _ in range(140):  # g0 comes at 0.15 m/s (5 mm a tick) and drives 0.26 m into a
+    assert sim._ghosts.bodies == 0 and len(sim.ghosts) == len(names)  # nobody near a yet: no bodies
+    assert 1.35 < _front(sim) < 1.5  # but the lidar sees g0 straight ahead
+    x0, body = 1.5, None
+    for _ in range(340):  # g0 comes at 0.15 m/s (5 mm a tick) and drives 0.2 m into a
         x0 -= 0.005
         sim.set_ghosts(ghosts(x0))
         sim.step()
-        g = sim.physics.ghost_poses()[0]
-        assert abs(g[0] - x0) < 1e-9 and abs(g[1]) < 1e-9  # where its daemon put it, by moving there
-    assert sim.physics._ghosts == bodies  # the same bodies all along: no ghost added or removed
+        g0 = sim.physics._ghosts.get("g0")
+        if g0 is not None:
+            body = body or g0
+            assert g0 is body  # once near, the same body all along
+            assert abs(g0.position.x - x0) < 1e-9 and abs(g0.position.y) < 1e-9  # where its daemon put it
+    assert body is not None and sim._ghosts.bodies == 1  # g0 alone is near a
     a = sim.state(sim.find("a"))  # type: ignore[arg-type]
     assert a.x < -0.05  # pushed back by the ghost that ran into it
     sim.set_ghosts(ghosts(-3.0))  # a jump (its daemon reset it): put there, nobody swept away
-    before = sim.state(sim.find("a")).x  # type: ignore[arg-type]
+    before = a.x
     sim.step()
-    assert abs(sim.physics.ghost_poses()[0][0] + 3.0) < 1e-9
     assert abs(sim.state(sim.find("a")).x - before) < 0.01  # type: ignore[arg-type]
+    assert "g0" not in sim.physics._ghosts  # and no longer near a: not a body
     sim.close()
