@@ -256,15 +256,23 @@ def main(argv: list[str] | None = None) -> int:
         "10 Hz, 1 000 robots' 10 000 puts a second through the router backed up a daemon's queries for seconds)",
     )
     p.add_argument("--ghost-cost-only", action="store_true", help="only the in-process ghost cost")
+    p.add_argument(
+        "--ghost-robots",
+        type=int,
+        nargs="+",
+        default=[1000, 3000],
+        help="robots (and as many ghosts) of the ghost cost, interleaved; the largest also beside (default: 1000 3000)",
+    )
     p.add_argument("--out", default="bench-out", help="directory for scale.json (default: %(default)s)")
     args = p.parse_args(argv)
-    if any(k < 1 for k in args.daemons) or any(n < 1 for n in args.sizes):
-        p.error("--daemons and --sizes must be at least 1")
+    if any(k < 1 for k in [*args.daemons, *args.sizes, *args.ghost_robots]):
+        p.error("--daemons, --sizes and --ghost-robots must be at least 1")
     info = machine_info()
     print(f"machine: {machine_line(info)}")
     progress = Progress()
     costs = []
-    for own, ghosts, layout in ((1000, 1000, "interleaved"), (3000, 3000, "interleaved"), (3000, 3000, "beside")):
+    cases = [(g, g, "interleaved") for g in args.ghost_robots] + [(max(args.ghost_robots),) * 2 + ("beside",)]
+    for own, ghosts, layout in cases:
         progress.update(f"ghost cost: {own} robots, {ghosts} ghosts {layout}", force=True)
         costs.append(ghost_cost(own, ghosts, layout))
         c = costs[-1]
