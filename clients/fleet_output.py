@@ -34,8 +34,10 @@ def in_list_order(records: Sequence[RobotRecord]) -> list[RobotRecord]:
 
 
 def format_table(records: Sequence[RobotRecord]) -> str:
-    """The ``fleet list`` table: one row per robot, numbers right-aligned."""
-    header = ("NAME", "NAMESPACE", "MODEL", "X", "Y", "YAW", "V", "W")
+    """The ``fleet list`` table: one row per robot, numbers right-aligned; a DAEMON column
+    when the robots run on more than one daemon (a shared fleet: docs/scale-out.md)."""
+    shared = len({r.daemon for r in records}) > 1
+    header = ("NAME", "NAMESPACE", "MODEL", "X", "Y", "YAW", "V", "W", *(("DAEMON",) if shared else ()))
     rows = [
         (
             r.name,
@@ -46,13 +48,16 @@ def format_table(records: Sequence[RobotRecord]) -> str:
             f"{r.pose.yaw:.3f}",
             f"{r.linear_velocity:.3f}",
             f"{r.angular_velocity:.3f}",
+            *((r.daemon,) if shared else ()),
         )
         for r in records
     ]
     widths = [max(len(row[i]) for row in (header, *rows)) for i in range(len(header))]
     lines = []
     for row in (header, *rows):
-        cells = [c.ljust(w) if i < 3 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True))]
+        cells = [
+            c.ljust(w) if i < 3 or i == 8 else c.rjust(w) for i, (c, w) in enumerate(zip(row, widths, strict=True))
+        ]
         lines.append("  ".join(cells).rstrip())
     return "\n".join(lines)
 

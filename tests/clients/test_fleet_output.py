@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+import msgspec
 import pytest
 
 from clients.fleet_args import build_parser, spawn_parser
@@ -41,6 +42,13 @@ def test_the_table_aligns_text_left_and_numbers_right() -> None:
         "NAME       NAMESPACE  MODEL        X      Y    YAW      V      W",
         "tb3_0      tb3_0      burger  -2.000  0.000  0.000  0.000  0.000",
         "burger_10  TB3_10     burger   0.500  0.000  0.250  0.000  0.000",
+    ]
+    shared = [rec("tb3_0"), rec("tb3_1")]  # a fleet shared by two daemons: which runs which
+    shared = [msgspec.structs.replace(r, daemon=d) for r, d in zip(shared, ["lab_a", "b"], strict=True)]
+    assert format_table(shared).splitlines() == [
+        "NAME   NAMESPACE  MODEL       X      Y    YAW      V      W  DAEMON",
+        "tb3_0  tb3_0      burger  0.000  0.000  0.000  0.000  0.000  lab_a",
+        "tb3_1  tb3_1      burger  0.000  0.000  0.000  0.000  0.000  b",
     ]
 
 
