@@ -53,7 +53,8 @@ def drive_until(tool: StandIn, ns: str, publish: Callable[[], None], moved: Call
 def test_spawner_node_flow_four_namespaced_robots_then_drive_one(ros: RosDomain) -> None:
     """The multi-robot tutorial: wait for /spawn_entity, spawn TB3_1..4 with the SDF text, drive TB3_1."""
     tool = ros.tool
-    assert tool.service_available(*SPAWN)
+    # as the spawner node's wait_for_service: a graph query may miss a token a moment after it was seen
+    assert wait_until(lambda: tool.service_available(*SPAWN), 10.0)
     for name, ns, x, y in MULTI:
         r = spawn(tool, name, ns, x, y)
         assert r.success, r.status_message
