@@ -5,7 +5,8 @@
 
 For each world, robot count and odometry noise it starts ``simd --lockstep --no-noise
 --odom-noise F``, spawns the robots,
-runs ``fleet-map --explore`` (which steps the daemon itself) and scores the saved map:
+runs ``fleet-map --explore`` (which steps the daemon itself; with ``--match`` when F > 0, loop
+closure included unless ``--no-loops``) and scores the saved map:
 
 - **precision**: the share of occupied cells within one cell (1.5 cells between centres and a
   wall surface) of a true wall, pillar or block;
@@ -42,7 +43,8 @@ POSES = {
 }
 
 
-def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float = 0.0) -> dict[str, Any]:
+def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float = 0.0,
+        loops: bool = True) -> dict[str, Any]:  # fmt: skip
     from clients.api import FleetClient
     from clients.mapping.evaluate import score
     from protocol.mapfile import read_map
@@ -73,7 +75,8 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         t0 = time.monotonic()
         p = subprocess.run(
             [sys.executable, "-m", "clients.mapping.cli", "-e", endpoint, "-o", str(stem), "--explore",
-             "--explore-limit", str(limit), *(["--match"] if odom_noise > 0 else [])],
+             "--explore-limit", str(limit), *(["--match"] if odom_noise > 0 else []),
+             *(["--no-loops"] if odom_noise > 0 and not loops else [])],
             capture_output=True, text=True, cwd=ROOT, timeout=900,
         )  # fmt: skip
         wall = time.monotonic() - t0
@@ -82,8 +85,12 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         sim = client.clock().tick / 30.0
         m = re.search(r"(\d+) scans from", p.stdout)
         scores = score(read_map(stem.with_name(stem.name + ".yaml")), world, poses)
+        closing = re.search(r"loop closure: keyframes (\d+), closures (\d+), optimisations (\d+), redraws (\d+)",
+                            p.stdout)  # fmt: skip
         out = {"world": world_name, "robots": robots, "odom_noise": odom_noise, "sim_s": sim, "wall_s": wall,
-               "scans": int(m.group(1)) if m else None, **scores}  # fmt: skip
+               "scans": int(m.group(1)) if m else None, **scores,
+               "loops": dict(zip(("keyframes", "closures", "optimisations", "redraws"),
+                                 map(int, closing.groups()), strict=True)) if closing else None}  # fmt: skip
         client.close()
         return out
     finally:
@@ -116,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--odom-noise", nargs="+", type=float, default=[0.0, 0.05], help="simd --odom-noise values (0 and 0.05)"
     )
+    ap.add_argument("--no-loops", action="store_true", help="scan matching without loop closure (fleet-map --no-loops)")
     ap.add_argument("--out", help="also write the results as JSON here")
     args = ap.parse_args(argv)
     rows = []
@@ -123,11 +131,12 @@ def main(argv: list[str] | None = None) -> int:
         for world in args.worlds:
             for n in args.robots:
                 for noise in args.odom_noise:
-                    r = run(world, n, args.limit, Path(tmp), noise)
+                    r = run(world, n, args.limit, Path(tmp), noise, not args.no_loops)
                     rows.append(r)
                     quality = f"precision {r['precision']:.3f}, recall {r['recall']:.3f}, coverage {r['coverage']:.3f}"
+                    closing = f"; loop closure {r['loops']}" if r["loops"] else ""
                     print(f"{world}, {n} robot(s), odom noise {noise:g}: {r['sim_s']:.0f} s sim, {r['wall_s']:.1f} s "
-                          f"wall; {quality}", flush=True)  # fmt: skip
+                          f"wall; {quality}{closing}", flush=True)  # fmt: skip
     speed = grid_speed()
     print()
     print("| world | robots | odometry noise | sim s | wall s | precision | recall | free space covered |")
