@@ -3,7 +3,10 @@
 The fleet topics carry a tick's odometry and its scans as two messages, which may arrive in
 either order; a scan waits for its tick's odometry (a few ticks of odometry are kept). The scan
 is placed at the robot's pose plus the lidar's mounting offset of its model
-(protocol/frames.py). Used by fleet-map and by the viewer's live map layer.
+(protocol/frames.py). With ``matching``, each scan's pose is first corrected against the map
+(match.py) and, with ``loops`` (the default), handed to the back end (backend.py), which keeps
+the keyframes and the pose graph, draws the scan, and tells which robots' corrections to move
+when the graph bends. Used by fleet-map and by the viewer's live map layer.
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ afterwards. A pose graph can bend it back, as Cartographer's global SLAM and sla
 The solver is Gauss-Newton (with a backtracking step on the robust cost) on the poses
 themselves; each linear system is solved by conjugate gradients preconditioned by the
 trajectories alone. A trajectory is a chain, and a chain's normal equations are solved exactly
-by two running sums along it (the derivation is in :meth:`PoseGraph._tree_solve`), so each
+by two running sums along it (the derivation is in ``_Problem._tree``), so each
 iteration costs a few vectorised passes over the nodes and edges: no dense matrix, no sparse
 library, and only the loop edges are left for the conjugate gradients to account for (the
 subgraph preconditioner of Dellaert et al., 2010). Everything is deterministic: the same
@@ -79,6 +79,9 @@ def information(sigma_m: float, sigma_rad: float) -> F64:
 
 @dataclass
 class Stats:
+    """What an optimisation took: Gauss-Newton steps, conjugate-gradient iterations in all, and
+    the (robust) cost before and after."""
+
     iterations: int = 0
     cg_iterations: int = 0
     cost_before: float = 0.0
@@ -98,6 +101,7 @@ class PoseGraph:
     info: list[F64] = field(default_factory=list)
     #: loop edges: from node i, node j was seen at pose z (in i's frame), with information
     loops: list[tuple[int, int, Pose, F64]] = field(default_factory=list)
+    _continued: set[int] = field(default_factory=set)  # nodes that have a next node
 
     def add_root(self, pose: Pose, info: F64) -> int:
         """A trajectory's first node, held at ``pose`` with ``info``."""
@@ -110,8 +114,9 @@ class PoseGraph:
     def add_node(self, parent: int, z: Pose, info: F64, pose: Pose | None = None) -> int:
         """A node seen at ``z`` from its trajectory's previous node ``parent``; it starts at
         ``parent ⊕ z`` unless ``pose`` is given."""
-        if not 0 <= parent < len(self.poses) or parent in self.parent[parent + 1 :]:
+        if not 0 <= parent < len(self.poses) or parent in self._continued:
             raise ValueError(f"node {parent} is not the last node of a trajectory")
+        self._continued.add(parent)
         self.poses.append(pose if pose is not None else compose(self.poses[parent], z))
         self.parent.append(parent)
         self.measured.append(z)
@@ -149,7 +154,7 @@ class PoseGraph:
         problem = _Problem(self)
         x = np.array(self.poses, dtype=np.float64)
         stats.cost_before = problem.cost(x, "huber")
-        for kernel in ("huber", "cauchy"):
+        for kernel in ("huber", "cauchy") if problem.robust.any() else ("huber",):
             cost = problem.cost(x, kernel)
             for _ in range(iterations):
                 stats.iterations += 1
