@@ -72,7 +72,7 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         for i, (x, y) in enumerate(poses):
             client.spawn(f"tb3_{i}", x, y)
         world = client.world()
-        stem = tmp / f"{world_name}-{robots}-{odom_noise:g}"
+        stem = tmp / f"{world_name}-{robots}-{odom_noise:g}-{seed}"
         t0 = time.monotonic()
         p = subprocess.run(
             [sys.executable, "-m", "clients.mapping.cli", "-e", endpoint, "-o", str(stem), "--explore",
