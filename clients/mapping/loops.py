@@ -6,16 +6,18 @@ a minute ago, the robot's estimate is decimetres and degrees off, and the old wa
 the refinement's reach. The back end therefore searches for each new keyframe, as
 Cartographer's constraint builder and slam_toolbox's loop closure do:
 
-- **A submap of old keyframes.** The caller gathers the scan points of older keyframes near the
-  new one's estimate, in the frame of the nearest of them (the anchor); only their relative
-  poses matter, and those the front end got right.
+- **A submap of old keyframes.** The caller gathers the scan points of a run of older
+  keyframes that saw the same walls, in the frame of one of them (the anchor), with where each
+  point was seen from; only the keyframes' relative poses matter, and those the front end got
+  right.
 - **First, where the graph says.** A point-to-line refinement (match.py's) from the current
   estimate: when the graph is already right, this pairs most of the scan at once.
-- **Else a wide correlative search.** ±0.5 m and ±0.2 rad around the estimate, one cell and
-  one cell-at-the-range's-end of angle at a time: the score of a pose is the mean, over the
-  scan's points, of the submap's points' evidence (1 on a point's cell, falling off over a
-  cell or two). Translations are whole cells, so a rotation's scores are one gather. The best
-  pose is refined by point-to-line ICP.
+- **Else a wide correlative search.** ±1 m and ±0.25 rad around the estimate, first on cells
+  twice the map's (every pose a coarse cell and a coarse-cell-at-the-range's-end of angle
+  apart), then on the map's cells around the best: the score of a pose is the mean, over the
+  scan's points, of the submap's evidence (1 on a point's cell, falling off over a cell or
+  two). Translations are whole cells, so a rotation's scores are one gather. The best pose is
+  refined by point-to-line ICP.
 - **Only confident matches.** A false closure bends a good map out of shape, a missed one
   costs nothing but time, so a match is refused unless most of the scan lies on the submap's
   walls (support, score), unless the walls hold the position in every direction (a single
@@ -51,15 +53,16 @@ COARSE_POINTS = 120
 #: the refinement's pull toward where it starts: loose (the data decides), but it keeps a
 #: direction the walls do not hold from wandering off
 PRIOR = information(0.2, 0.1)
-#: accepting: share of the scan's points paired with the submap's walls within 3 cm after the
-#: refinement; the walls' spread (see match.Fit.spread); the wide search's mean evidence, and
-#: how close the best pose more than AMBIGUOUS_CELLS / AMBIGUOUS_RAD away may come to it
+#: accepting: the share of the scan's points paired with the submap's walls within 3 cm after
+#: the refinement, and the walls' spread (see match.Fit.spread)
 MIN_SUPPORT = 0.5
 MIN_SPREAD = 0.08
-#: at most this share of the pairs may be seen from opposite sides (the two faces of a wall)
+#: at most this share of the pairs may be seen from opposite sides (the two faces of a wall),
+#: a pair being points this close
 MAX_BACKSIDE = 0.1
-#: how close a scan point and a submap point must be to count as a pair in that check
 PAIR_M = 0.05
+#: the wide search's best mean evidence, and how close the best pose more than AMBIGUOUS_CELLS
+#: coarse cells or AMBIGUOUS_RAD away may come to it
 MIN_SCORE = 0.45
 MAX_SECOND = 0.95
 AMBIGUOUS_CELLS = 2

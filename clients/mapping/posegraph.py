@@ -18,13 +18,13 @@ afterwards. A pose graph can bend it back, as Cartographer's global SLAM and sla
   edges still far off at Huber's solution (graduated non-convexity, in two steps).
 
 The solver is Gauss-Newton (with a backtracking step on the robust cost) on the poses
-themselves; each linear system is solved by conjugate gradients preconditioned by the
-trajectories alone. A trajectory is a chain, and a chain's normal equations are solved exactly
-by two running sums along it (the derivation is in ``_Problem._tree``), so each
-iteration costs a few vectorised passes over the nodes and edges: no dense matrix, no sparse
-library, and only the loop edges are left for the conjugate gradients to account for (the
-subgraph preconditioner of Dellaert et al., 2010). Everything is deterministic: the same
-graph gives the same poses bit for bit.
+themselves. A trajectory is a chain, and a chain's normal equations are solved exactly by two
+running sums along it (the derivation is in ``_Problem._tree``): a few vectorised passes over
+the nodes, no matrix. The loop edges, a few dozen to a few hundred in a run, add a low-rank
+term, which Woodbury's identity turns into one dense system of three unknowns a loop edge; with
+more loop edges than that is worth, conjugate gradients preconditioned by the trajectories'
+solver take over (the subgraph preconditioner of Dellaert et al., 2010). No sparse library is
+needed, and everything is deterministic: the same graph gives the same poses bit for bit.
 """
 
 from __future__ import annotations
@@ -46,7 +46,10 @@ HUBER_SCALE = 3.0
 CAUCHY_SCALE = 3.0
 #: Gauss-Newton stops when no pose moves more than this (metres, radians) in an iteration
 STEP_TOLERANCE = 1e-5
-#: conjugate gradients: relative residual to reach, and the most iterations of one solve
+#: up to this many loop edges the linear systems are solved directly (a dense system of three
+#: unknowns a loop edge, by Woodbury's identity); beyond, by conjugate gradients to a relative
+#: residual of CG_TOLERANCE, at most CG_ITERATIONS a system
+DIRECT_LOOPS = 200
 CG_TOLERANCE = 1e-9
 CG_ITERATIONS = 300
 
@@ -247,13 +250,49 @@ class _Problem:
 
     def step(self, x: F64, kernel: str) -> tuple[F64, int]:
         """The Gauss-Newton step at ``x`` (iteratively reweighted for the robust edges), and the
-        conjugate-gradient iterations it took."""
+        conjugate-gradient iterations it took (0 when solved directly)."""
         e, a, b = _linearise(x, self.i, self.j, self.z)
         s = np.einsum("mi,mij,mj->m", e, self.info, e)
         w = self.info * np.where(self.robust, _weight(s, kernel), 1.0)[:, None, None]
         we = np.einsum("mij,mj->mi", w, e)
         g = self._scatter(np.einsum("mji,mj->mi", a, we), np.einsum("mji,mj->mi", b, we))
         g[self.roots] += np.einsum("mij,mj->mi", self.root_info, self._root_residual(x))
+
+        tree = self._tree(x, b)
+        rhs = -g
+        loops = np.flatnonzero(self.robust)
+        if len(loops) == 0:
+            return tree(rhs[:, :, None])[:, :, 0], 0
+        if len(loops) <= DIRECT_LOOPS:
+            return self._woodbury(tree, rhs, loops, a, b, w), 0
+        return self._conjugate_gradients(tree, rhs, a, b, w)
+
+    def _woodbury(self, tree: Callable[[F64], F64], rhs: F64, loops: npt.NDArray[np.intp], a: F64, b: F64,
+                  w: F64) -> F64:  # fmt: skip
+        """H⁻¹ rhs exactly, for H = T + U Uᵀ: T the trajectories' normal matrix (solved by
+        ``tree``), U Uᵀ the loop edges' (each Jᵀ W J = (Jᵀ W½)(Jᵀ W½)ᵀ, three columns of U
+        nonzero at its two nodes). Woodbury's identity leaves one dense system of three
+        unknowns a loop edge: H⁻¹ = T⁻¹ - T⁻¹U (I + Uᵀ T⁻¹ U)⁻¹ Uᵀ T⁻¹."""
+        m = len(loops)
+        ie, je = self.i[loops], self.j[loops]
+        root = np.linalg.cholesky(w[loops])  # W = R Rᵀ
+        ua = np.einsum("eji,ejk->eik", a[loops], root)  # the rows of U at each edge's first node
+        ub = np.einsum("eji,ejk->eik", b[loops], root)  # and at its second
+        u = np.zeros((self.n, 3, 3 * m))
+        cols = np.arange(3 * m).reshape(m, 3)
+        u[ie[:, None, None], np.arange(3)[None, :, None], cols[:, None, :]] = ua
+        u[je[:, None, None], np.arange(3)[None, :, None], cols[:, None, :]] = ub
+        z = tree(u)  # T⁻¹ U
+        capacitance = np.eye(3 * m) + (np.einsum("eji,ejk->eik", ua, z[ie]) +
+                                       np.einsum("eji,ejk->eik", ub, z[je])).reshape(3 * m, 3 * m)  # fmt: skip
+        y = tree(rhs[:, :, None])[:, :, 0]
+        uty = (np.einsum("eji,ej->ei", ua, y[ie]) + np.einsum("eji,ej->ei", ub, y[je])).reshape(3 * m)
+        return np.asarray(y - np.einsum("njk,k->nj", z, np.linalg.solve(capacitance, uty)))
+
+    def _conjugate_gradients(self, tree: Callable[[F64], F64], rhs: F64, a: F64, b: F64,
+                             w: F64) -> tuple[F64, int]:  # fmt: skip
+        """H⁻¹ rhs by conjugate gradients preconditioned by ``tree``, and the iterations it took:
+        for graphs with more loop edges than a dense system of theirs is worth."""
 
         def hessian_times(v: F64) -> F64:
             u = np.einsum("mij,mj->mi", a, v[self.i]) + np.einsum("mij,mj->mi", b, v[self.j])
@@ -262,11 +301,12 @@ class _Problem:
             out[self.roots] += np.einsum("mij,mj->mi", self.root_info, v[self.roots])
             return out
 
-        tree = self._tree(x, b)
-        rhs = -g
+        def precondition(r: F64) -> F64:
+            return tree(r[:, :, None])[:, :, 0]
+
         sol = np.zeros_like(rhs)
         r = rhs.copy()
-        zr = tree(r)
+        zr = precondition(r)
         p = zr.copy()
         rz = float((r * zr).sum())
         limit = CG_TOLERANCE * float(np.sqrt((rhs * rhs).sum()))
@@ -281,7 +321,7 @@ class _Problem:
             r -= alpha * hp
             if float(np.sqrt((r * r).sum())) <= limit:
                 break
-            zr = tree(r)
+            zr = precondition(r)
             rz_next = float((r * zr).sum())
             p = zr + (rz_next / rz) * p
             rz = rz_next
@@ -289,7 +329,7 @@ class _Problem:
 
     def _tree(self, x: F64, b: F64) -> Callable[[F64], F64]:
         """The exact solver of the trajectories' own normal equations (the roots' priors and the
-        trajectory edges), as the preconditioner.
+        trajectory edges), for any number of right-hand sides at once.
 
         Write u_k = A_k δ_parent + B_k δ_k for each trajectory edge (u = δ for a root): the
         trajectories' normal matrix is Lᵀ Ω L for that bidiagonal map L and the edges'
@@ -312,21 +352,22 @@ class _Problem:
         first = np.ones(self.n, dtype=bool)
         first[1:] = chain[1:] != chain[:-1]
 
-        def solve(r: F64) -> F64:
+        def solve(r: F64) -> F64:  # r: n x 3 x k, k right-hand sides
             ro = r[order]
+            k = r.shape[2]
             # backward: q_k = r_k + M_childᵀ q_child
             qt = _segment_sum(ro[::-1, :2], chain[::-1])[::-1]
-            child_term = np.zeros(self.n)
-            child_term[:-1] = np.where(first[1:], 0.0, (lever_o[1:] * qt[1:]).sum(axis=1))
+            child_term = np.zeros((self.n, k))
+            child_term[:-1] = np.where(first[1:, None], 0.0, (lever_o[1:, :, None] * qt[1:]).sum(axis=1))
             qth = _segment_sum((ro[:, 2] + child_term)[::-1], chain[::-1])[::-1]
-            c = np.einsum("mij,mj->mi", blocks_o, np.column_stack([qt, qth]))
+            c = np.einsum("mij,mjk->mik", blocks_o, np.concatenate([qt, qth[:, None, :]], axis=1))
             # forward: y_k = c_k + M_k y_parent
             yth = _segment_sum(c[:, 2], chain)
-            parent_th = np.zeros(self.n)
-            parent_th[1:] = np.where(first[1:], 0.0, yth[:-1])
-            yt = _segment_sum(c[:, :2] + lever_o * parent_th[:, None], chain)
+            parent_th = np.zeros((self.n, k))
+            parent_th[1:] = np.where(first[1:, None], 0.0, yth[:-1])
+            yt = _segment_sum(c[:, :2] + lever_o[:, :, None] * parent_th[:, None, :], chain)
             out = np.empty_like(r)
-            out[order] = np.column_stack([yt, yth])
+            out[order] = np.concatenate([yt, yth[:, None, :]], axis=1)
             return out
 
         return solve

@@ -72,20 +72,46 @@ def test_a_wrong_loop_edge_loses_its_weight() -> None:
     assert good1 > 0.9 and good2 > 0.9 and wrong < 0.01
 
 
-def test_the_trajectories_alone_are_solved_in_one_iteration_each() -> None:
-    """Two robots' chains and no loop edge: the preconditioner is the exact solver of such a graph,
-    so conjugate gradients finish in one iteration a Gauss-Newton step."""
-    rng = np.random.default_rng(3)
+def _two_robots(loops: int, seed: int = 3) -> tuple[PoseGraph, dict[int, Pose]]:
+    """Two robots' trajectories of 40 keyframes each, measured with noise and started off their
+    true poses, and ``loops`` true loop edges between random keyframes."""
+    rng = np.random.default_rng(seed)
     g = PoseGraph()
     last = [g.add_root((0.0, 0.0, 0.0), information(1e-3, 1e-3)), g.add_root((2.0, 1.0, 1.0), information(1e-3, 1e-3))]
-    for k in range(40):
+    truth = {k: g.poses[k] for k in last}
+    for k in range(80):
         r = k % 2
         z = (float(rng.uniform(0.1, 0.4)), float(rng.normal(0, 0.05)), float(rng.normal(0, 0.3)))
-        start = compose(compose(g.poses[last[r]], z), (float(rng.normal(0, 0.05)), 0.0, float(rng.normal(0, 0.05))))
-        last[r] = g.add_node(last[r], z, information(float(rng.uniform(0.005, 0.05)), 0.01), start)
+        measured = (z[0] + float(rng.normal(0, 0.005)), z[1], z[2] + float(rng.normal(0, 0.01)))
+        node = g.add_node(last[r], measured, information(0.005, 0.01))
+        truth[node] = compose(truth[last[r]], z)
+        last[r] = node
+    for _ in range(loops):
+        i, j = (int(v) for v in rng.choice(len(truth), 2, replace=False))
+        g.add_loop(i, j, between(truth[i], truth[j]), information(0.01, 0.005))
+    return g, truth
+
+
+def test_trajectories_alone_are_solved_exactly() -> None:
+    """No loop edge: the trajectories' own solver is exact, and the measurements are met."""
+    g, _ = _two_robots(loops=0)
     stats = g.optimise()
-    assert stats.cg_iterations == stats.iterations
-    assert stats.cost_after < 1e-12
+    assert stats.cg_iterations == 0 and stats.cost_after < 1e-12
+
+
+def test_the_direct_and_the_iterative_solvers_agree(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Thirty loop edges, solved by Woodbury's identity and, forced, by conjugate gradients: the
+    same poses, and nearer the truth than the odometry."""
+    import clients.mapping.posegraph as posegraph
+
+    direct, truth = _two_robots(loops=30)
+    before = _errors(direct, [truth[k] for k in range(len(truth))])[0]
+    assert direct.optimise().cg_iterations == 0
+    monkeypatch.setattr(posegraph, "DIRECT_LOOPS", 0)
+    iterative, _ = _two_robots(loops=30)
+    assert iterative.optimise().cg_iterations > 0
+    assert np.allclose(direct.poses, iterative.poses, atol=1e-6)
+    assert _errors(direct, [truth[k] for k in range(len(truth))])[0] < before / 3
 
 
 def test_optimising_repeats_to_the_bit() -> None:

@@ -103,6 +103,7 @@ def test_map_turtlebot3_world_through_the_daemon(daemon_factory: Callable[..., D
         (["--robots", "ghost"], "no live robot with namespace ghost"),
         (["--resolution", "0"], "--resolution"),
         (["-o", "/nonexistent/dir/map"], "is not a directory"),
+        (["--no-loops"], "give --match too"),
     ],
 )
 def test_bad_requests_are_one_line(daemon: Daemon, tmp_path: Path, extra: list[str], message: str) -> None:
