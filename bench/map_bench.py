@@ -2,10 +2,12 @@
 
     python -m bench.map_bench                                  # turtlebot3_world and _house, 1 and 4 robots
     python -m bench.map_bench --worlds turtlebot3_world --robots 1
+    python -m bench.map_bench --worlds turtlebot3_house --odom-noise 0.05 --seeds 0 1 2 [--no-loops]
 
 For each world, robot count and odometry noise it starts ``simd --lockstep --no-noise
 --odom-noise F``, spawns the robots,
-runs ``fleet-map --explore`` (which steps the daemon itself) and scores the saved map:
+runs ``fleet-map --explore`` (which steps the daemon itself; with ``--match`` when F > 0, loop
+closure included unless ``--no-loops``) and scores the saved map:
 
 - **precision**: the share of occupied cells within one cell (1.5 cells between centres and a
   wall surface) of a true wall, pillar or block;
@@ -42,7 +44,8 @@ POSES = {
 }
 
 
-def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float = 0.0) -> dict[str, Any]:
+def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float = 0.0,
+        loops: bool = True, seed: int = 0) -> dict[str, Any]:  # fmt: skip
     from clients.api import FleetClient
     from clients.mapping.evaluate import score
     from protocol.mapfile import read_map
@@ -51,7 +54,7 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
     log = (tmp / f"simd-{world_name}-{robots}.log").open("w")
     daemon = subprocess.Popen(
         [sys.executable, "-m", "simd.cli", "--world", world_name, "--lockstep", "--no-noise", "-l", endpoint,
-         "--odom-noise", str(odom_noise)],
+         "--odom-noise", str(odom_noise), "--seed", str(seed)],
         stdout=log, stderr=subprocess.STDOUT, cwd=ROOT,
     )  # fmt: skip
     try:
@@ -69,11 +72,12 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         for i, (x, y) in enumerate(poses):
             client.spawn(f"tb3_{i}", x, y)
         world = client.world()
-        stem = tmp / f"{world_name}-{robots}-{odom_noise:g}"
+        stem = tmp / f"{world_name}-{robots}-{odom_noise:g}-{seed}"
         t0 = time.monotonic()
         p = subprocess.run(
             [sys.executable, "-m", "clients.mapping.cli", "-e", endpoint, "-o", str(stem), "--explore",
-             "--explore-limit", str(limit), *(["--match"] if odom_noise > 0 else [])],
+             "--explore-limit", str(limit), *(["--match"] if odom_noise > 0 else []),
+             *(["--no-loops"] if odom_noise > 0 and not loops else [])],
             capture_output=True, text=True, cwd=ROOT, timeout=900,
         )  # fmt: skip
         wall = time.monotonic() - t0
@@ -82,8 +86,13 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         sim = client.clock().tick / 30.0
         m = re.search(r"(\d+) scans from", p.stdout)
         scores = score(read_map(stem.with_name(stem.name + ".yaml")), world, poses)
-        out = {"world": world_name, "robots": robots, "odom_noise": odom_noise, "sim_s": sim, "wall_s": wall,
-               "scans": int(m.group(1)) if m else None, **scores}  # fmt: skip
+        closing = re.search(r"loop closure: keyframes (\d+), closures (\d+), optimisations (\d+), redraws (\d+)",
+                            p.stdout)  # fmt: skip
+        out = {"world": world_name, "robots": robots, "odom_noise": odom_noise, "seed": seed, "sim_s": sim,
+               "wall_s": wall,
+               "scans": int(m.group(1)) if m else None, **scores,
+               "loops": dict(zip(("keyframes", "closures", "optimisations", "redraws"),
+                                 map(int, closing.groups()), strict=True)) if closing else None}  # fmt: skip
         client.close()
         return out
     finally:
@@ -116,24 +125,29 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--odom-noise", nargs="+", type=float, default=[0.0, 0.05], help="simd --odom-noise values (0 and 0.05)"
     )
+    ap.add_argument("--no-loops", action="store_true", help="scan matching without loop closure (fleet-map --no-loops)")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="simd --seed values: other wheel slip draws (0)")
     ap.add_argument("--out", help="also write the results as JSON here")
     args = ap.parse_args(argv)
     rows = []
     with tempfile.TemporaryDirectory(prefix="map-bench-") as tmp:
         for world in args.worlds:
             for n in args.robots:
-                for noise in args.odom_noise:
-                    r = run(world, n, args.limit, Path(tmp), noise)
+                for noise, seed in ((noise, seed) for noise in args.odom_noise for seed in args.seeds):
+                    r = run(world, n, args.limit, Path(tmp), noise, not args.no_loops, seed)
                     rows.append(r)
                     quality = f"precision {r['precision']:.3f}, recall {r['recall']:.3f}, coverage {r['coverage']:.3f}"
-                    print(f"{world}, {n} robot(s), odom noise {noise:g}: {r['sim_s']:.0f} s sim, {r['wall_s']:.1f} s "
-                          f"wall; {quality}", flush=True)  # fmt: skip
+                    closing = f"; loop closure {r['loops']}" if r["loops"] else ""
+                    seeded = f" (seed {seed})" if seed else ""
+                    print(f"{world}, {n} robot(s), odom noise {noise:g}{seeded}: {r['sim_s']:.0f} s sim, "
+                          f"{r['wall_s']:.1f} s wall; {quality}{closing}", flush=True)  # fmt: skip
     speed = grid_speed()
     print()
     print("| world | robots | odometry noise | sim s | wall s | precision | recall | free space covered |")
     print("|---|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['world']} | {r['robots']} | {r['odom_noise']:g} | {r['sim_s']:.0f} | {r['wall_s']:.1f} "
+        seeded = f" (seed {r['seed']})" if r["seed"] else ""
+        print(f"| {r['world']} | {r['robots']} | {r['odom_noise']:g}{seeded} | {r['sim_s']:.0f} | {r['wall_s']:.1f} "
               f"| {r['precision']:.3f} | {r['recall']:.3f} | {r['coverage']:.3f} |")  # fmt: skip
     print(f"\ngrid: {speed:.0f} scans fused a second on one core (100 robots send 500 a second)")
     if args.out:

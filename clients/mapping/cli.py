@@ -10,7 +10,9 @@ offset, and fuses the scans of all the robots it follows into one log-odds grid 
 0.05 m a cell as the TurtleBot3 Cartographer setup. It shows its progress while it runs and
 writes, on Ctrl-C or after ``--duration``: ``NAME.pgm`` and ``NAME.yaml`` as nav2's map saver
 does (nav2_map_server loads them as they are), and ``NAME.png``, the map with each robot's path.
-The poses are the daemon's odometry, exact in this simulation (ground truth, as Gazebo's).
+The poses are the daemon's odometry, exact in this simulation (ground truth, as Gazebo's)
+unless ``simd --odom-noise``; for odometry that drifts, ``--match`` corrects each scan by scan
+matching (match.py) and closes loops (backend.py), as a SLAM node does.
 """
 
 from __future__ import annotations
@@ -64,8 +66,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--match",
         action="store_true",
-        help="correct each scan's pose by scan matching against the map before fusing it: for odometry that "
+        help="correct each scan's pose by scan matching against the map before fusing it, and close loops (a pose "
+        "graph of keyframes, bent back when a robot sees again what it or another mapped): for odometry that "
         "drifts (simd --odom-noise, a real robot); off by default, as simd's odometry is exact unless told",
+    )
+    p.add_argument(
+        "--no-loops",
+        action="store_true",
+        help="with --match: scan matching only, no loop closure (as slam_toolbox's do_loop_closing: false)",
     )
     p.add_argument(
         "--explore",
@@ -90,6 +98,7 @@ class Plan:
     explore: bool = False
     explore_limit: float = 300.0
     matching: bool = False
+    loops: bool = True
 
 
 def plan_from_args(args: argparse.Namespace) -> Plan:
@@ -113,9 +122,11 @@ def plan_from_args(args: argparse.Namespace) -> Plan:
             raise ValueError("--robots needs at least one namespace")
     if not args.explore_limit > 0:
         raise ValueError(f"--explore-limit must be > 0, got {args.explore_limit}")
+    if args.no_loops and not args.match:
+        raise ValueError("--no-loops turns off the loop closure of --match: give --match too")
     return Plan(
         stem, robots, args.resolution, args.duration, args.force, args.explore, args.explore_limit,
-        args.match,
+        args.match, not args.no_loops,
     )  # fmt: skip
 
 
@@ -284,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     b = world.bounds
     grid = LogOddsGrid((b.x_min - MARGIN_M, b.x_max + MARGIN_M, b.y_min - MARGIN_M, b.y_max + MARGIN_M),
                        plan.resolution)  # fmt: skip
-    mapper = Mapper(grid, plan.robots, robots, matching=plan.matching)
+    mapper = Mapper(grid, plan.robots, robots, matching=plan.matching, loops=plan.loops)
     inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
     client.on_fleet_odom(inbox.put)
     client.on_fleet_scans(inbox.put)
@@ -316,6 +327,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fleet-map: error: {e}", file=sys.stderr)
         return EXIT_FAILED
     cells = occupancy.cells
+    if (back := mapper.backend) is not None:
+        print(f"fleet-map: loop closure: keyframes {len(back.keyframes)}, closures {back.closures}, "
+              f"optimisations {back.optimisations}, redraws {back.redraws}", flush=True)  # fmt: skip
     if coverage:
         steps = coverage[:: max(1, len(coverage) // 8)] + coverage[-1:]
         print("fleet-map: explored over sim time: " + ", ".join(f"{t:.0f} s {a:.1f} m²" for t, a in steps), flush=True)

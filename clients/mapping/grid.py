@@ -128,6 +128,27 @@ class LogOddsGrid:
             self.hit_y = np.zeros((self.height, self.width), dtype=np.float64)
             self.hit_count = np.zeros((self.height, self.width), dtype=np.float64)
 
+    def add_points(self, ex: F64, ey: F64) -> None:
+        """End points alone, each cell they fall in occupied, with no free space before them: a
+        submap of remembered points to match a scan against (loop closure), not a map to show."""
+        self.keep_points()
+        col = np.floor((ex - self.origin[0]) / self.resolution).astype(np.intp)
+        row = np.floor((ey - self.origin[1]) / self.resolution).astype(np.intp)
+        inside = (col >= 0) & (col < self.width) & (row >= 0) & (row < self.height)
+        self.logodds[row[inside], col[inside]] = HIT
+        self.seen[row[inside], col[inside]] = True
+        self._remember(ex, ey)
+
+    def clear(self) -> None:
+        """Back to an empty grid of the same extent (keeping points if it did), to be rebuilt."""
+        self.logodds[:] = 0.0
+        self.seen[:] = False
+        self.scans = 0
+        if self.hit_count.size:
+            self.hit_x[:] = 0.0
+            self.hit_y[:] = 0.0
+            self.hit_count[:] = 0.0
+
     def _remember(self, ex: F64, ey: F64) -> None:
         """Add end points to their cells' sums."""
         col = np.floor((ex - self.origin[0]) / self.resolution).astype(np.intp)

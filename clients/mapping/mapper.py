@@ -3,7 +3,10 @@
 The fleet topics carry a tick's odometry and its scans as two messages, which may arrive in
 either order; a scan waits for its tick's odometry (a few ticks of odometry are kept). The scan
 is placed at the robot's pose plus the lidar's mounting offset of its model
-(protocol/frames.py). Used by fleet-map and by the viewer's live map layer.
+(protocol/frames.py). With ``matching``, each scan's pose is first corrected against the map
+(match.py) and, with ``loops`` (the default), handed to the back end (backend.py), which keeps
+the keyframes and the pose graph, draws the scan, and tells which robots' corrections to move
+when the graph bends. Used by fleet-map and by the viewer's live map layer.
 """
 
 from __future__ import annotations
@@ -13,8 +16,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from clients.mapping.backend import Backend
 from clients.mapping.grid import Beams, LogOddsGrid
-from clients.mapping.match import match
+from clients.mapping.match import locate
+from clients.mapping.posegraph import compose
 from protocol.frames import SCAN_OFFSET
 from protocol.messages import FleetOdometry, FleetScans
 
@@ -39,6 +44,9 @@ class Mapper:
     matching: bool = False
     #: per robot, the map frame's pose of its odometry frame (x, y, yaw): what scan matching learned
     corrections: dict[str, tuple[float, float, float]] = field(default_factory=dict)
+    #: with matching, close loops too: keyframes, a pose graph, the grid redrawn when it bends (backend.py)
+    loops: bool = True
+    backend: Backend | None = None
 
     def __post_init__(self) -> None:
         if self.matching:
@@ -99,7 +107,24 @@ class Mapper:
             ox, oy, _ = SCAN_OFFSET.get(self.models.get(ns, "burger"), SCAN_OFFSET["burger"])
             x, y, yaw = self.corrected(ns, pose)
             if self.matching:
-                x, y, yaw = match(self.grid, (x, y, yaw), (ox, oy), rows[i], self.beams)
+                (x, y, yaw), support = locate(self.grid, (x, y, yaw), (ox, oy), rows[i], self.beams)
                 self._learn(ns, pose, (x, y, yaw))
+                if self.loops:
+                    if self.backend is None:
+                        self.backend = Backend(self.grid, self.beams)
+                    self._moved(self.backend.add(ns, (x, y, yaw), (ox, oy), rows[i], support))
+                    continue
             sx, sy = x + ox * np.cos(yaw) - oy * np.sin(yaw), y + ox * np.sin(yaw) + oy * np.cos(yaw)
             self.grid.integrate(sx, sy, yaw, rows[i], self.beams)
+
+    def _moved(self, moved: dict[str, tuple[float, float, float]]) -> None:
+        """The pose graph moved these robots (by a rigid motion of the map frame each): their
+        corrections, newest poses and drawn paths follow."""
+        if not moved or self.backend is None:
+            return
+        for ns, motion in moved.items():
+            if ns in self.corrections:
+                self.corrections[ns] = compose(motion, self.corrections[ns])
+            if ns in self.latest:
+                self.latest[ns] = compose(motion, self.latest[ns])
+            self.paths[ns] = [*self.backend.path(ns), self.latest.get(ns, (0.0, 0.0, 0.0))[:2]]

@@ -65,7 +65,7 @@ def _offsets(reach: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.intp]]:
     return dr.ravel(), dc.ravel()
 
 
-class _Obstacles:
+class Obstacles:
     """The map's remembered obstacle points and wall normals near a pose, for one scan's match."""
 
     def __init__(self, grid: LogOddsGrid) -> None:
@@ -158,14 +158,42 @@ def _coarse(grid: LogOddsGrid, px: F64, py: F64, pose: tuple[float, float, float
     return np.array(best[1:])
 
 
-def _refine(obstacles: _Obstacles, px: F64, py: F64, pose: tuple[float, float, float], start: F64) -> tuple[F64, float]:
-    """Point-to-line ICP from the offset ``start``, with the prior pulling toward the guess
-    ``pose``: the offset it ends at and the share of the scan's points paired there (its support);
-    support 0 when too few pairs were found to trust."""
+#: the prior of scan-to-map matching, as an information matrix: the odometry's error over one scan
+PRIOR = np.diag([1 / PRIOR_M**2, 1 / PRIOR_M**2, 1 / PRIOR_RAD**2])
+
+
+class Fit:
+    """Where a refinement ended: the offset from its guess, the share of the scan's points paired
+    there (its support, 0 when too few pairs were found to trust), and the data's own
+    information about the pose (Σ JᵀWJ of the last pairs, without the prior): a scan of one
+    wall or of a corridor has next to none along it."""
+
+    def __init__(self, offset: F64, support: float, information: F64) -> None:
+        self.offset = offset
+        self.support = support
+        self.information = information
+
+    def spread(self) -> float:
+        """How well the pairs' walls hold the position in the direction they hold it least: the
+        smaller eigenvalue of their normals' scatter over its trace (0 for parallel walls, 0.5
+        for as much wall one way as across)."""
+        t = self.information[:2, :2]
+        trace = float(t[0, 0] + t[1, 1])
+        if trace <= 0.0:
+            return 0.0
+        det = float(t[0, 0] * t[1, 1] - t[0, 1] * t[1, 0])
+        smallest = trace / 2.0 - math.sqrt(max(trace * trace / 4.0 - det, 0.0))
+        return smallest / trace
+
+
+def refine(obstacles: Obstacles, px: F64, py: F64, pose: tuple[float, float, float], start: F64,
+           prior: F64 = PRIOR) -> Fit:  # fmt: skip
+    """Point-to-line ICP from the offset ``start``, with ``prior`` (an information matrix)
+    pulling toward the guess ``pose``."""
     x0, y0, yaw0 = pose
-    prior = np.diag([1 / PRIOR_M**2, 1 / PRIOR_M**2, 1 / PRIOR_RAD**2])
     p = start.astype(np.float64).copy()
     pairs = 0
+    data = np.zeros((3, 3))
     for it in range(ITERATIONS):
         c, s = math.cos(yaw0 + p[2]), math.sin(yaw0 + p[2])
         wx, wy = x0 + p[0] + c * px - s * py, y0 + p[1] + s * px + c * py
@@ -174,7 +202,7 @@ def _refine(obstacles: _Obstacles, px: F64, py: F64, pose: tuple[float, float, f
         use = found & (np.hypot(np.where(found, mx - wx, 0), np.where(found, my - wy, 0)) < limit)
         pairs = int(use.sum())
         if pairs < MIN_PAIRS:
-            return p, 0.0
+            return Fit(p, 0.0, np.zeros((3, 3)))
         nx, ny = nx[use], ny[use]
         residual = nx * (wx[use] - mx[use]) + ny * (wy[use] - my[use])
         # d(world point)/d(yaw) = (-s px - c py, c px - s py)
@@ -183,13 +211,52 @@ def _refine(obstacles: _Obstacles, px: F64, py: F64, pose: tuple[float, float, f
         # Huber weights: a pair a few sigmas off (a corner, a robot) counts less
         scaled = np.abs(residual) / (2.0 * POINT_SIGMA_M)
         weight = np.where(scaled <= 1.0, 1.0, 1.0 / np.maximum(scaled, 1e-12)) / POINT_SIGMA_M**2
-        hessian = (jac * weight[:, None]).T @ jac + prior
+        data = (jac * weight[:, None]).T @ jac
+        hessian = data + prior
         gradient = (jac * weight[:, None]).T @ residual + prior @ p
         step = np.linalg.solve(hessian, -gradient)
         p = p + step
         if abs(step[0]) + abs(step[1]) < 1e-4 and abs(step[2]) < 1e-4 and it >= ITERATIONS // 2:
             break
-    return p, pairs / len(px)
+    return Fit(p, pairs / len(px), data)
+
+
+def end_points(ranges: npt.ArrayLike, beams: Beams, offset: tuple[float, float]) -> tuple[F64, F64]:
+    """A scan's end points in the robot's frame (valid returns only), for a lidar ``offset``
+    ahead of the robot's origin."""
+    r = np.asarray(ranges, dtype=np.float64)
+    ok = np.isfinite(r) & (r >= beams.range_min) & (r < beams.range_max)
+    a = beams.angles[ok]
+    return offset[0] + r[ok] * np.cos(a), offset[1] + r[ok] * np.sin(a)
+
+
+def locate(
+    grid: LogOddsGrid, pose: tuple[float, float, float], offset: tuple[float, float], ranges: npt.ArrayLike,
+    beams: Beams,
+) -> tuple[tuple[float, float, float], float]:  # fmt: skip
+    """The robot pose near ``pose`` (x, y, yaw of base_footprint) where the scan, taken by a lidar
+    ``offset`` ahead of the robot's origin, fits ``grid`` best, and the share of the scan's
+    points that support it; ``pose`` itself and 0 when the map cannot tell."""
+    if not grid.hit_count.size:
+        raise ValueError("scan matching needs a grid that keeps its points: call grid.keep_points() first")
+    if grid.scans < MIN_SCANS:
+        return pose, 0.0
+    px, py = end_points(ranges, beams, offset)
+    if len(px) < MIN_PAIRS:
+        return pose, 0.0
+    obstacles = Obstacles(grid)
+    fit = refine(obstacles, px, py, pose, np.zeros(3))
+    if fit.support < RELOCK_BELOW:
+        # little of the scan fits where odometry says: after a long blind stretch the drift may
+        # be beyond the refinement's reach; a wide search finds the basin, if there is one
+        fit2 = refine(obstacles, px, py, pose, _coarse(grid, px, py, pose))
+        if fit2.support >= max(RELOCK_BELOW, fit.support + RELOCK_GAIN):
+            fit = fit2
+    if fit.support == 0.0:
+        return pose, 0.0
+    x0, y0, yaw0 = pose
+    p = fit.offset
+    return (x0 + p[0], y0 + p[1], math.atan2(math.sin(yaw0 + p[2]), math.cos(yaw0 + p[2]))), fit.support
 
 
 def match(
@@ -199,26 +266,4 @@ def match(
     """The robot pose near ``pose`` (x, y, yaw of base_footprint) where the scan, taken by a lidar
     ``offset`` ahead of the robot's origin, fits ``grid`` best; ``pose`` itself when the map
     cannot tell."""
-    if not grid.hit_count.size:
-        raise ValueError("scan matching needs a grid that keeps its points: call grid.keep_points() first")
-    if grid.scans < MIN_SCANS:
-        return pose
-    r = np.asarray(ranges, dtype=np.float64)
-    ok = np.isfinite(r) & (r >= beams.range_min) & (r < beams.range_max)
-    if ok.sum() < MIN_PAIRS:
-        return pose
-    a = beams.angles[ok]
-    px = offset[0] + r[ok] * np.cos(a)  # end points in the robot's frame
-    py = offset[1] + r[ok] * np.sin(a)
-    obstacles = _Obstacles(grid)
-    p, support = _refine(obstacles, px, py, pose, np.zeros(3))
-    if support < RELOCK_BELOW:
-        # little of the scan fits where odometry says: after a long blind stretch the drift may
-        # be beyond the refinement's reach; a wide search finds the basin, if there is one
-        p2, support2 = _refine(obstacles, px, py, pose, _coarse(grid, px, py, pose))
-        if support2 >= max(RELOCK_BELOW, support + RELOCK_GAIN):
-            p, support = p2, support2
-    if support == 0.0:
-        return pose
-    x0, y0, yaw0 = pose
-    return x0 + p[0], y0 + p[1], math.atan2(math.sin(yaw0 + p[2]), math.cos(yaw0 + p[2]))
+    return locate(grid, pose, offset, ranges, beams)[0]
