@@ -76,14 +76,16 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
     out: dict[str, Any] = {"daemons": k, "robots": n, "status": "ok"}
     with contextlib.ExitStack() as stack:
         try:
-            procs["router"] = _start([sys.executable, "-m", "simd.router", "-l", router_ep], tmp / "router.log")
+            logs = tmp / f"{k}x{n}"  # each run's logs apart, for a failed run to be read after
+            logs.mkdir(exist_ok=True)
+            procs["router"] = _start([sys.executable, "-m", "simd.router", "-l", router_ep], logs / "router.log")
             stack.callback(stop_process, procs["router"], 10.0)
             ids = [f"d{i}" for i in range(k)]
             for d in ids:
                 cmd = [sys.executable, "-m", "simd.cli", "-m", "client", "-e", router_ep, "--join", "--id", d,
                        "--world", str(world), "--max-robots", str(n + 100), "--seed", "1", "--log-level", "warning",
                        "--cmd-timeout", "0"]  # fmt: skip
-                procs[d] = _start(cmd, tmp / f"simd-{d}.log")
+                procs[d] = _start(cmd, logs / f"simd-{d}.log")
                 stack.callback(stop_process, procs[d], 10.0)
             progress.update(f"{label} starting", force=True)
             fleet = Fleet(router_ep)
@@ -98,7 +100,7 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
                     if time.monotonic() > deadline or any(p.poll() is not None for p in procs.values()):
                         raise
                     time.sleep(0.3)
-            sub = Subscriber(router_ep, PROBE, tmp / "subscriber.log", "fleet")
+            sub = Subscriber(router_ep, PROBE, logs / "subscriber.log", "fleet")
             stack.callback(sub.stop)
             sub.wait_ready(60.0)
             names = [f"r{i}" for i in range(n)]
@@ -128,18 +130,19 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
                 time.sleep(0.2)
             c0 = {d: _daemon_clock(fleet, d) for d in ids}
             s0 = sub.snapshot()
+            t0 = time.monotonic()
             cpu0 = {p: proc_cpu_seconds(proc.pid) for p, proc in procs.items()}
             cpu0["subscriber"] = proc_cpu_seconds(sub.pid)
-            t0 = time.monotonic()
             while (el := time.monotonic() - t0) < args.duration:
                 if any(p.poll() is not None for p in procs.values()):
                     raise RuntimeError("a process died during the window")
                 progress.update(f"{label} measure {el:4.1f}/{args.duration:g} s")
                 time.sleep(0.2)
             s1 = sub.snapshot()
+            cpu1 = {p: proc_cpu_seconds(proc.pid) for p, proc in procs.items()}  # before the clocks: a loaded
+            cpu1["subscriber"] = proc_cpu_seconds(sub.pid)  # daemon may take seconds to answer them
+            t1 = time.monotonic()
             c1 = {d: _daemon_clock(fleet, d) for d in ids}
-            cpu1 = {p: proc_cpu_seconds(proc.pid) for p, proc in procs.items()}
-            cpu1["subscriber"] = proc_cpu_seconds(sub.pid)
             wall = s1["t"] - s0["t"]
             rtf = {d: (c1[d][1] - c0[d][1]) / TICK_HZ / (c1[d][0] - c0[d][0]) for d in ids}
             # what the daemons simulated in the subscriber's window: each daemon's robots at its own RTF
@@ -150,7 +153,7 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
             for name, before in cpu0.items():
                 after = cpu1.get(name)
                 if before is not None and after is not None:
-                    cpu[name] = 100 * (after - before) / wall
+                    cpu[name] = 100 * (after - before) / (t1 - t0)
             out.update(
                 rtf=rtf,
                 rtf_min=min(rtf.values()),
