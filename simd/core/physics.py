@@ -149,12 +149,7 @@ class Physics:
 
     def place_ghost(self, key: str, x: float, y: float, yaw: float) -> None:
         """Teleport a ghost (it jumped: its daemon reset it, or its poses came late)."""
-        body = self._ghosts[key]
-        body.position = (x, y)
-        body.angle = yaw
-        body.velocity = (0.0, 0.0)
-        body.angular_velocity = 0.0
-        self.space.reindex_shapes_for_body(body)
+        self._teleport(self._ghosts[key], x, y, yaw)
 
     def remove_ghost(self, key: str) -> None:
         body = self._ghosts.pop(key)
@@ -180,7 +175,9 @@ class Physics:
 
     def place(self, rid: int, x: float, y: float, yaw: float) -> None:
         """Teleport a robot (reset), stopping it."""
-        body = self._bodies[rid]
+        self._teleport(self._bodies[rid], x, y, yaw)
+
+    def _teleport(self, body: pymunk.Body, x: float, y: float, yaw: float) -> None:
         body.position = (x, y)
         body.angle = yaw
         body.velocity = (0.0, 0.0)

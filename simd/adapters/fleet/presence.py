@@ -15,7 +15,7 @@ import os
 import socket
 import threading
 import time
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
@@ -25,6 +25,8 @@ from protocol.control import Clock, DaemonInfo
 from protocol.errors import FleetError
 from protocol.keys import Keys
 from simd.adapters.fleet.requests import Pending, reply_format
+
+T = TypeVar("T")
 
 #: how long a starting daemon looks for others (they answer in milliseconds on one network)
 LOOK_S = 1.0
@@ -40,38 +42,32 @@ def serving(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list
     return sorted(found)
 
 
-def infos(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list[DaemonInfo]:
-    """What the daemons serving ``keys``' prefix say of themselves (``P/daemons``)."""
+def _answers(session: zenoh.Session, key: str, reply_type: type[T], timeout: float) -> list[T]:
+    """Every daemon's answer on ``key`` (target all, no consolidation); others' replies left out."""
     found = []
     for reply in session.get(
-        f"{keys.daemons}?format=msgpack",
+        f"{key}?format=msgpack",
         timeout=timeout,
         target=zenoh.QueryTarget.ALL,
         consolidation=zenoh.ConsolidationMode.NONE,
     ):
         if reply.ok is not None:
             try:
-                found.append(decode(reply.ok.payload.to_bytes(), DaemonInfo))
+                found.append(decode(reply.ok.payload.to_bytes(), reply_type))
             except FleetError:
                 continue  # not a daemon of ours
     return found
 
 
+def infos(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list[DaemonInfo]:
+    """What the daemons serving ``keys``' prefix say of themselves (``P/daemons``)."""
+    return _answers(session, keys.daemons, DaemonInfo, timeout)
+
+
 def fleet_tick(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> int | None:
     """The tick the fleet's daemons are at (the latest of their clocks), None if none answers:
     a daemon that joins starts its clock there, so that the fleet steps its ticks together."""
-    ticks = []
-    for reply in session.get(
-        f"{keys.clock}?format=msgpack",
-        timeout=timeout,
-        target=zenoh.QueryTarget.ALL,
-        consolidation=zenoh.ConsolidationMode.NONE,
-    ):
-        if reply.ok is not None:
-            try:
-                ticks.append(decode(reply.ok.payload.to_bytes(), Clock).tick)
-            except FleetError:
-                continue
+    ticks = [c.tick for c in _answers(session, keys.clock, Clock, timeout)]
     return max(ticks) if ticks else None
 
 
