@@ -115,24 +115,39 @@ class Publisher:
     # -- robots -------------------------------------------------------------------------------
 
     def add_robot(self, state: RobotState, time: float) -> None:
-        """Declare the robot's entities and put its first odometry, so a robot is never
-        silent, even while paused."""
+        """Declare the robot's token and put its first odometry (to whoever subscribes), so a
+        robot is never silent, even while paused."""
         ns = state.namespace
-        k = self.keys
-        self._odom_pub[ns] = self.session.declare_publisher(k.odom(ns), encoding="application/msgpack")
-        # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a tick's
-        # scans and its odometry each get a full queue, and odometry goes first when a link is
-        # congested (it is what closes a control loop).
-        self._scan_pub[ns] = self.session.declare_publisher(
-            k.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
-        )
-        self._tokens[ns] = self.session.liveliness().declare_token(k.alive(ns))
+        self._tokens[ns] = self.session.liveliness().declare_token(self.keys.alive(ns))
         self._odom_puts = ([], [])
         first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
             self._gone.discard(ns)
-        self._put_odom([ns], [first])
+        if self.odom_wanted or self.odom_json_wanted:
+            self._put_odom([ns], [first])
+
+    def _odom_publisher(self, ns: str) -> zenoh.Publisher:
+        """The robot's odometry publisher, declared the first time somebody subscribes to some
+        robot's topics: thousands of publishers declared up front made a daemon behind a router
+        answer ever later (docs/scale-out.md), and nobody may ever subscribe to them."""
+        pub = self._odom_pub.get(ns)
+        if pub is None:
+            pub = self._odom_pub[ns] = self.session.declare_publisher(
+                self.keys.odom(ns), encoding="application/msgpack"
+            )
+        return pub
+
+    def _scan_publisher(self, ns: str) -> zenoh.Publisher:
+        pub = self._scan_pub.get(ns)
+        if pub is None:
+            # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a
+            # tick's scans and its odometry each get a full queue, and odometry goes first when a
+            # link is congested (it is what closes a control loop).
+            pub = self._scan_pub[ns] = self.session.declare_publisher(
+                self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+            )
+        return pub
 
     def remove_robot(self, ns: str) -> None:
         for table in (self._odom_pub, self._scan_pub):
@@ -167,9 +182,9 @@ class Publisher:
             self._put_odom(snap.namespaces, odom)
         if snap.scan_namespaces and (self.scan_wanted or self.scan_json_wanted):
             scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
-            spubs = self._scan_pub
+            declare = self._scan_publisher
             for ns, data in zip(snap.scan_namespaces, scans, strict=True):
-                spubs[ns].put(data)
+                declare(ns).put(data)
             if self.scan_json_wanted:
                 self._mirror("scan", snap.scan_namespaces, scans)
         self._publish_fleet_topics(snap)
@@ -177,7 +192,7 @@ class Publisher:
     def _put_odom(self, namespaces: list[str], odom: list[bytes]) -> None:
         layout, puts = self._odom_puts
         if namespaces != layout:  # cheap when equal: the simulation hands out the same list
-            puts = [self._odom_pub[ns].put for ns in namespaces]
+            puts = [self._odom_publisher(ns).put for ns in namespaces]
             self._odom_puts = (list(namespaces), puts)
         for put, data in zip(puts, odom, strict=True):
             put(data)
