@@ -90,10 +90,10 @@ class Ghosts:
             names, models = [cols.names[i] for i in idx], [cols.models[i] for i in idx]
             x, y, yaw = cols.x[keep], cols.y[keep], cols.yaw[keep]
         if names != self.names or models != self._model_names:
-            self._rebuild(names, models, x, y, yaw)
-        self.x, self.y, self.yaw = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), np.asarray(yaw)
+            self._rebuild(names, models)
+        self.x, self.y, self.yaw = (np.asarray(c, dtype=np.float64) for c in (x, y, yaw))
 
-    def _rebuild(self, names: list[str], models: list[str], x: F64, y: F64, yaw: F64) -> None:
+    def _rebuild(self, names: list[str], models: list[str]) -> None:
         """A new set of ghosts (rare: a robot spawned, deleted, or a daemon came or went)."""
         self.names, self._model_names = list(names), list(models)
         self.models = [MODELS[m] for m in models]
