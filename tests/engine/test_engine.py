@@ -243,6 +243,52 @@ def test_a_packed_step_returns_each_robots_newest_scan_whatever_changed_meanwhil
         np.testing.assert_array_equal(p.odom[:, 5], last.angular_z[rows])
 
 
+def _commanded_step(e: Engine, r: Recorder, names: list[str], values: list[tuple[float, float]]) -> object:
+    """One tick with ``commands`` (the same list object each time, as a learner sends it)."""
+    twist = np.array(values, dtype="<f8").tobytes()
+    req = control.StepRequest(ticks=1, commands=control.PackedCommands(names=names, twist=twist), observe=names)
+    e.submit(req, r.reply("step"))
+    e.serve_pending()
+    while e._steps:
+        e._run_slice()
+    return r.log.pop(next(i for i, (k, _) in enumerate(r.log) if k == "step"))[1]
+
+
+def test_a_learners_repeated_name_list_reaches_the_right_robots_after_the_table_changes() -> None:
+    """The rows of a name list sent step after step are looked up once while the table stays
+    put: a delete (rows shift) or a spawn must be seen, and a bad list refused every time."""
+    e, r = engine(lockstep=True)
+    for i in range(3):
+        e.submit(control.SpawnRequest(name=f"r{i}", x=2.0 * i), r.reply("spawned"))
+    e.serve_pending()
+    t = e.sim.robots
+
+    def targets(name: str) -> tuple[float, float]:
+        row = t.row_of(name)
+        assert row is not None
+        return float(t.target_v[row]), float(t.target_w[row])
+
+    names = ["r2", "r1"]
+    for _ in range(2):  # the second time from the memo
+        result = _commanded_step(e, r, names, [(0.2, 0.0), (0.0, 1.0)])
+        assert isinstance(result, StepResult) and list(result.states) == ["r2", "r1"]
+        assert targets("r2") == (0.2, 0.0) and targets("r1") == (0.0, 1.0) and targets("r0") == (0.0, 0.0)
+    e.submit(control.DeleteRequest(name="r0"), r.reply("deleted"))  # r1 and r2 move up a row
+    e.serve_pending()
+    result = _commanded_step(e, r, names, [(0.0, -1.0), (0.1, 0.0)])
+    assert isinstance(result, StepResult) and list(result.states) == ["r2", "r1"]
+    assert targets("r2") == (0.0, -1.0) and targets("r1") == (0.1, 0.0)
+    e.submit(control.DeleteRequest(name="r1"), r.reply("deleted"))
+    e.serve_pending()
+    for _ in range(2):
+        refused = _commanded_step(e, r, names, [(0.0, 0.0), (0.0, 0.0)])
+        assert isinstance(refused, FleetError) and refused.code is ErrorCode.NOT_FOUND
+    twice = ["r2", "r2"]
+    for _ in range(2):
+        refused = _commanded_step(e, r, twice, [(0.0, 0.0), (0.0, 0.0)])
+        assert isinstance(refused, FleetError) and "more than once" in str(refused)
+
+
 def test_the_rtf_meter_measures_from_a_resume_on_an_injected_clock() -> None:
     m = RtfMeter()
     assert m.measure() is None
