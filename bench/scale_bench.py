@@ -110,7 +110,7 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
             )
             spawned = [nm for nm, (_, ok, _) in zip(names, results, strict=True) if ok]
             out["spawned"], out["spawn_s"] = len(spawned), spawn_s
-            from protocol.codec import decode
+            from protocol.codec import MAX_REPLY_BYTES, decode
             from protocol.control import RobotList
 
             per_daemon: dict[str, int] = {}
@@ -118,7 +118,7 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
                                            target=fleet.zenoh.QueryTarget.ALL,
                                            consolidation=fleet.zenoh.ConsolidationMode.NONE):  # fmt: skip
                 if reply.ok is not None:
-                    for r in decode(reply.ok.payload.to_bytes(), RobotList).robots:
+                    for r in decode(reply.ok.payload.to_bytes(), RobotList, MAX_REPLY_BYTES).robots:
                         per_daemon[r.daemon] = per_daemon.get(r.daemon, 0) + 1
             out["robots_per_daemon"] = per_daemon
             driver = Driver(fleet, spawned, args.seed, rate_hz=args.drive_hz)

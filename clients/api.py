@@ -29,7 +29,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from protocol.codec import decode, encode
+from protocol.codec import MAX_REPLY_BYTES, decode, encode
 from protocol.control import (
     Clock,
     DaemonInfo,
@@ -149,7 +149,7 @@ class FleetClient:
         deadline = self.timeout if timeout is None else timeout
         for reply in self._ask(key, request, deadline):
             if reply.ok is not None:
-                found.append(decode(reply.ok.payload.to_bytes(), reply_type))
+                found.append(decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES))
             elif error is None:
                 error = self._error(key, reply, deadline)
         if found and (error is None or not every):
@@ -161,7 +161,7 @@ class FleetClient:
         deadline = self.timeout if timeout is None else timeout
         for reply in self._ask(key, request, deadline):
             if reply.ok is not None:
-                return decode(reply.ok.payload.to_bytes(), reply_type)
+                return decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES)
             raise self._error(key, reply, deadline)
         raise self._unavailable(key)
 

@@ -43,6 +43,10 @@ def _pair(type_: type[T]) -> tuple[msgspec.msgpack.Decoder[T], msgspec.json.Deco
 
 #: The largest payload any key takes (a step with commands for 5 000 robots is ~0.5 MB).
 MAX_PAYLOAD_BYTES = 4 << 20
+#: The largest reply a client takes to a query it sent: what a daemon answers grows with its
+#: fleet (a robot list is ~760 bytes a robot, 4.6 MB at 6 000; a packed step's scans 1.4 kB a
+#: robot), so the requests' limit would refuse a large fleet's own list.
+MAX_REPLY_BYTES = 256 << 20
 
 
 def decode(payload: bytes, type_: type[T], max_bytes: int = MAX_PAYLOAD_BYTES) -> T:

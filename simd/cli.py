@@ -303,9 +303,14 @@ def main(argv: list[str] | None = None) -> int:
     presence: Presence | None = None
     ghost_feed = None
     ros_adapter = None
+    command_session: zenoh.Session | None = None
     try:
+        from simd.adapters.fleet.commands import command_session_needed
+
+        if command_session_needed(opts.mode):  # the same router, the same credentials
+            command_session = zenoh.open(conf)
         members = Members(session, keys, args.id) if args.join else None
-        adapter = FleetAdapter(session, keys, engine, args.id, members)
+        adapter = FleetAdapter(session, keys, engine, args.id, members, command_session)
         if members is not None:
             from simd.adapters.fleet.ghosts import GhostFeed
 
@@ -363,6 +368,8 @@ def main(argv: list[str] | None = None) -> int:
         sim.close()
         if ros_session is not None:
             ros_session.close()
+        if command_session is not None:
+            command_session.close()
         session.close()
     log.info("stopped at sim time %.3f s", sim.time)
     return 0

@@ -61,8 +61,16 @@ class FleetAdapter:
     """Serves one engine on one zenoh session under one key prefix."""
 
     def __init__(
-        self, session: zenoh.Session, keys: Keys, engine: Engine, daemon_id: str = "", members: Members | None = None
+        self,
+        session: zenoh.Session,
+        keys: Keys,
+        engine: Engine,
+        daemon_id: str = "",
+        members: Members | None = None,
+        command_session: zenoh.Session | None = None,
     ) -> None:
+        """``command_session``: where cmd_vel comes in, when not ``session`` (see
+        :func:`simd.adapters.fleet.commands.command_session_needed`)."""
         self.keys = keys
         self.engine = engine
         self.daemon_id = daemon_id
@@ -74,7 +82,7 @@ class FleetAdapter:
         self.spec = spec
         self._world_info = convert.world_info(engine.sim.world)
         self.publisher = Publisher(session, keys, spec)
-        self.commands = CommandIntake(session, keys)
+        self.commands = CommandIntake(command_session or session, keys)
         self.outbox = Outbox("fleet-out")
         # this daemon's clock alone, under its id: what its healthcheck asks in a shared fleet
         mine = [requests.Route(keys.daemon_clock(daemon_id), ClockRequest, acts=False)] if daemon_id else []
