@@ -256,9 +256,15 @@ def main(argv: list[str] | None = None) -> int:
     through_router = args.ros2 and not args.listen and not args.config
     if through_router:
         # rmw_zenohd (or our own router) holds the port fleet clients know, 7447: the fleet
-        # protocol is served through it instead of on a port of its own
+        # protocol is served through it instead of on a port of its own, as the router's client
+        # (a peer that does not listen hears no other peer through a router: the daemons of a
+        # shared fleet would not hear each other)
         opts.listen = []
-        opts.connect.append(router.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]"))
+        if args.mode is None:
+            opts.mode = "client"
+        reach = router.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]")
+        if reach not in opts.connect:
+            opts.connect.append(reach)
     try:
         conf = opts.build(defaults=TRANSPORT_DEFAULTS)
         if through_router:
@@ -314,9 +320,11 @@ def main(argv: list[str] | None = None) -> int:
         presence = Presence(session, keys, args.id, world.name, shared=args.join)
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
+            from simd.adapters.ros2.shared_fleet import SharedFleet
 
             options = RosOptions(ros_domain, ros_distro, args.ros_world_frame)  # type: ignore[arg-type]
-            ros_adapter = Ros2Adapter(ros_session, engine, options)
+            shared = SharedFleet(session, keys, args.id) if args.join else None
+            ros_adapter = Ros2Adapter(ros_session, engine, options, shared)
             how = "serving as the router on" if args.ros_serve_router else "joining the router at"
             print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {router}", flush=True)
 
