@@ -142,6 +142,14 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed)",
     )
+    g.add_argument(
+        "--ros-mode",
+        choices=("peer", "client"),
+        default="peer",
+        help="join the ROS router as a peer that ROS processes reach directly, as rmw_zenoh's processes do, or "
+        "as its client, everything through the router (a daemon in a container, which other peers cannot reach) "
+        "(default: %(default)s)",
+    )
 
 
 def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int, str]:
@@ -150,6 +158,10 @@ def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int,
     frame = args.ros_world_frame
     if frame is not None and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z0-9_]+)*", frame):
         raise ValueError(f"--ros-world-frame must be a tf frame name like 'world' (no leading '/'), got {frame!r}")
+    if args.ros_serve_router and args.ros_mode == "client":
+        raise ValueError(
+            "--ros-serve-router makes simd the ROS router, which is no client: leave out --ros-mode client"
+        )
     distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ("jazzy", "humble") else "jazzy")
     return domain, distro
 
@@ -246,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
 
         router = args.ros_router or DEFAULT_ROUTER
         try:
-            ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router))
+            ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router, mode=args.ros_mode))
         except (ValueError, zenoh.ZError) as e:
             msg = zenoh_error_text(e)
             if "in use" in msg.lower():

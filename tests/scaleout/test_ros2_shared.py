@@ -12,6 +12,8 @@ from collections import Counter
 from pathlib import Path
 from typing import Any
 
+import pytest
+
 from clients import FleetClient, wait_until
 from protocol.placement import owner
 from tests.conftest import simd_command
@@ -26,11 +28,12 @@ GET_ENTITIES = ("/fleetsim/get_entities", "simulation_interfaces/srv/GetEntities
 TICK = 1.0 / 30
 
 
-def _daemon(endpoint: str, daemon_id: str, tmp_path: Path) -> subprocess.Popen[str]:
+def _daemon(endpoint: str, daemon_id: str, ros_mode: str, tmp_path: Path) -> subprocess.Popen[str]:
     """A --join --ros2 daemon as the docs start it: the router is its ROS router and, with no
     -l, its fleet protocol's too."""
     args = ["--join", "--id", daemon_id, "--world", "empty", "--no-noise", "--lockstep", "--ros2", "--ros-router"]
-    return _start(simd_command(*args, endpoint), tmp_path / f"simd-{daemon_id}.log")
+    args += [endpoint, "--ros-mode", ros_mode]
+    return _start(simd_command(*args), tmp_path / f"simd-{daemon_id}.log")
 
 
 def _kill(proc: subprocess.Popen[str]) -> None:
@@ -102,12 +105,13 @@ def _clock_window(c: FleetClient, clock: Any, ticks: int) -> tuple[Counter[int],
     return seen, gids, start
 
 
-def test_two_daemons_show_one_simulator_to_ros(router: Router, tmp_path: Path) -> None:  # noqa: F811
+@pytest.mark.parametrize("ros_mode", ["peer", "client"])  # peers as on one host; clients as in compose.fleet.yaml
+def test_two_daemons_show_one_simulator_to_ros(ros_mode: str, router: Router, tmp_path: Path) -> None:  # noqa: F811
     endpoint = router[0]
     names = [f"burger_{i}" for i in range(40)]
     on_a = [n for n in names if owner(n, ["a", "b"]) == "a"]
     on_b = [n for n in names if owner(n, ["a", "b"]) == "b"]
-    daemons = {"a": _daemon(endpoint, "a", tmp_path)}
+    daemons = {"a": _daemon(endpoint, "a", ros_mode, tmp_path)}
     tool = StandIn(endpoint)
     try:
         with FleetClient(endpoint, timeout=5.0) as c:
@@ -116,7 +120,7 @@ def test_two_daemons_show_one_simulator_to_ros(router: Router, tmp_path: Path) -
             # alone, a runs every robot: one that placement by name gives b once b is there
             early = on_b[0]
             assert _spawn(tool, early, 0.0).success
-            daemons["b"] = _daemon(endpoint, "b", tmp_path)
+            daemons["b"] = _daemon(endpoint, "b", ros_mode, tmp_path)
             assert wait_until(lambda: [d.id for d in c.daemons()] == ["a", "b"], 30.0), (
                 tmp_path / "simd-b.log"
             ).read_text()
