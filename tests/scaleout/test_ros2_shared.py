@@ -6,6 +6,7 @@ daemons run in lockstep, so that the clock moves only when the test steps it."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import time
 from collections import Counter
@@ -182,3 +183,31 @@ def test_two_daemons_show_one_simulator_to_ros(ros_mode: str, router: Router, tm
         tool.close()
         for p in daemons.values():
             _kill(p)
+
+
+def _compose_value(text: str, shell: dict[str, str]) -> str:
+    """``${NAME:-default}`` as compose reads it from ``shell``."""
+    return re.sub(r"\$\{(\w+):-([^}]*)\}", lambda m: shell.get(m.group(1)) or m.group(2), text)
+
+
+@pytest.mark.parametrize("shell", [{}, {"SIMD_ROS2": "1"}])
+def test_the_fleet_compose_file_adds_ros2_to_both_daemons_when_asked(shell: dict[str, str]) -> None:
+    """docker/compose.fleet.yaml through the image's entrypoint (the flags simd gets from the
+    daemons' command and variables): without SIMD_ROS2 as before, with it --ros2 on both
+    daemons, the compose router as the ROS router and the daemons as its clients."""
+    import yaml
+
+    from simd.cli import build_parser
+    from simd.container_entry import build_argv
+    from tests.conftest import ROOT
+
+    compose = yaml.safe_load((ROOT / "docker/compose.fleet.yaml").read_text())
+    for service, daemon_id in (("simd_a", "a"), ("simd_b", "b")):
+        spec = compose["services"][service]
+        env = {k: _compose_value(str(v), shell) for k, v in spec["environment"].items()}
+        args = build_parser().parse_args(build_argv(spec["command"], env))
+        assert (args.join, args.id, args.mode, args.connect) == (True, daemon_id, "client", ["tcp/router:7447"])
+        assert not args.listen  # a client of the router, as before
+        assert args.ros2 == bool(shell)
+        if args.ros2:
+            assert (args.ros_router, args.ros_mode, args.ros_domain_id) == ("tcp/router:7447", "client", 0)
