@@ -95,6 +95,7 @@ class Ros2Adapter:
         self._time: float | None = None  # the latest sim time heard of
         self.speaker: Speaker | None = None
         self._heard_speaker: str | None = None  # the speaker last logged
+        self._closing = False
         if shared is None:
             self._ask = engine_ask(engine.submit)
             self._follow_speaker()
@@ -133,6 +134,7 @@ class Ros2Adapter:
         return self.commands.dropped
 
     def close(self) -> None:
+        self._closing = True  # a change of speaker heard from now on declares nothing
         if self.speaker is not None:
             self.speaker.close()
         self.outbox.put(self._fall_silent)  # no service call taken once the outbox has stopped
@@ -152,6 +154,8 @@ class Ros2Adapter:
     def _follow_speaker(self) -> None:
         """Declare /clock and the services when this daemon speaks for the fleet, undeclare
         them when it no longer does (another daemon took over)."""
+        if self._closing:
+            return
         speaks = True
         if self.speaker is not None:
             who = self.speaker.speaker()
