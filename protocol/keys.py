@@ -22,7 +22,13 @@ key                    declared by simd as         payload     reply / notes
 ``P/daemons/<id>``     liveliness token            --          present while daemon ``<id>`` runs
 ``P/daemons/<id>/tick`` publisher, stepping only   DaemonTick  a shared fleet's daemons before each stepped tick
 ``P/daemons/<id>/clock`` queryable                 (none)      Clock of daemon ``<id>`` alone (its healthcheck)
+``P/daemons/<id>/ros2/..`` liveliness token         --          on the ROS 2 session (below)
 =====================  ==========================  ==========  ======================================
+
+``P/daemons/<id>/ros2/<domain>/<distro>/<since>`` (``simd --join --ros2``): daemon ``<id>``
+serves ROS 2 domain ``<domain>`` for ``<distro>`` since ``<since>`` (ns of the Unix epoch),
+declared on its ROS 2 session. Of the daemons that serve one domain, the earliest speaks for
+the fleet: it alone publishes ``/clock`` and declares the ROS services (docs/ros2.md).
 """
 
 from __future__ import annotations
@@ -110,6 +116,12 @@ class Keys:
         """Where daemon ``daemon_id`` of a shared fleet puts its robots before each tick it
         steps (``*`` for every daemon's): the one clock of docs/scale-out.md."""
         return self._k("daemons", daemon_id, "tick")
+
+    def daemon_ros2(self, daemon_id: str, domain: int | str, distro: str, since: int | str) -> str:
+        """The liveliness token by which daemon ``daemon_id`` of a shared fleet says it serves ROS 2
+        domain ``domain`` for ``distro`` since ``since`` (ns of the Unix epoch); ``*`` in any
+        chunk for a pattern."""
+        return self._k("daemons", daemon_id, "ros2", str(domain), distro, str(since))
 
     def cmd_vel(self, ns: str) -> str:
         return self._k(ns, "cmd_vel")

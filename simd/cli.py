@@ -142,6 +142,14 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed)",
     )
+    g.add_argument(
+        "--ros-mode",
+        choices=("peer", "client"),
+        default="peer",
+        help="join the ROS router as a peer that ROS processes reach directly, as rmw_zenoh's processes do, or "
+        "as its client, everything through the router (a daemon in a container, which other peers cannot reach) "
+        "(default: %(default)s)",
+    )
 
 
 def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int, str]:
@@ -150,6 +158,10 @@ def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int,
     frame = args.ros_world_frame
     if frame is not None and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z0-9_]+)*", frame):
         raise ValueError(f"--ros-world-frame must be a tf frame name like 'world' (no leading '/'), got {frame!r}")
+    if args.ros_serve_router and args.ros_mode == "client":
+        raise ValueError(
+            "--ros-serve-router makes simd the ROS router, which is no client: leave out --ros-mode client"
+        )
     distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ("jazzy", "humble") else "jazzy")
     return domain, distro
 
@@ -246,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
 
         router = args.ros_router or DEFAULT_ROUTER
         try:
-            ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router))
+            ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router, mode=args.ros_mode))
         except (ValueError, zenoh.ZError) as e:
             msg = zenoh_error_text(e)
             if "in use" in msg.lower():
@@ -256,9 +268,15 @@ def main(argv: list[str] | None = None) -> int:
     through_router = args.ros2 and not args.listen and not args.config
     if through_router:
         # rmw_zenohd (or our own router) holds the port fleet clients know, 7447: the fleet
-        # protocol is served through it instead of on a port of its own
+        # protocol is served through it instead of on a port of its own, as the router's client
+        # (a peer that does not listen hears no other peer through a router: the daemons of a
+        # shared fleet would not hear each other)
         opts.listen = []
-        opts.connect.append(router.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]"))
+        if args.mode is None:
+            opts.mode = "client"
+        reach = router.replace("0.0.0.0", "127.0.0.1").replace("[::]", "[::1]")
+        if reach not in opts.connect:
+            opts.connect.append(reach)
     try:
         conf = opts.build(defaults=TRANSPORT_DEFAULTS)
         if through_router:
@@ -319,9 +337,11 @@ def main(argv: list[str] | None = None) -> int:
         presence = Presence(session, keys, args.id, world.name, shared=args.join)
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
+            from simd.adapters.ros2.shared_fleet import SharedFleet
 
             options = RosOptions(ros_domain, ros_distro, args.ros_world_frame)  # type: ignore[arg-type]
-            ros_adapter = Ros2Adapter(ros_session, engine, options)
+            shared = SharedFleet(session, keys, args.id) if args.join else None
+            ros_adapter = Ros2Adapter(ros_session, engine, options, shared)
             how = "serving as the router on" if args.ros_serve_router else "joining the router at"
             print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {router}", flush=True)
 

@@ -25,7 +25,7 @@ import json
 import queue
 import struct
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -271,9 +271,10 @@ class StandIn:
             time.sleep(0.1)
 
     # topics
-    def subscribe(self, name: str, typename: str) -> queue.Queue[tuple[Any, int, bytes]]:
-        """Decoded messages of the topic, with their sequence numbers and raw payloads."""
-        out: queue.Queue[tuple[Any, int, bytes]] = queue.Queue()
+    def subscribe(self, name: str, typename: str) -> queue.Queue[tuple[Any, int, bytes, bytes]]:
+        """Decoded messages of the topic, with their sequence numbers, raw payloads and the
+        GIDs of the publishers that sent them."""
+        out: queue.Queue[tuple[Any, int, bytes, bytes]] = queue.Queue()
 
         def on_sample(sample: zenoh.Sample) -> None:
             att = sample.attachment.to_bytes() if sample.attachment is not None else b""
@@ -282,7 +283,7 @@ class StandIn:
                 return
             seq = struct.unpack_from("<q", att)[0]
             payload = sample.payload.to_bytes()
-            out.put((deserialize(payload, typename), seq, payload))
+            out.put((deserialize(payload, typename), seq, payload, bytes(att[17:])))
 
         self._entities.append(self.session.declare_subscriber(self.key(name, typename), on_sample))
         return out
@@ -326,7 +327,19 @@ class StandIn:
 
     # services
     def call(self, name: str, srv_type: str, request: Any, timeout: float = 10.0) -> Any:
-        """As an rclcpp client: get with the attachment, take the reply whose sequence matches."""
+        """As an rclcpp client: get with the attachment, take the reply whose sequence matches
+        (rclcpp drops any later reply of the same sequence: the call is no longer pending)."""
+        for response in self._call(name, srv_type, request, timeout):
+            return response
+        raise TimeoutError(f"no reply from {name}")
+
+    def call_all(self, name: str, srv_type: str, request: Any, timeout: float = 10.0) -> list[Any]:
+        """Every reply the call gets that rclcpp would take (its sequence and GID), until the
+        query ends: what the servers of a service answered, all of them."""
+        return list(self._call(name, srv_type, request, timeout))
+
+    def _call(self, name: str, srv_type: str, request: Any, timeout: float) -> Iterator[Any]:
+        """As rmw_zenoh's client: target all complete queryables, no consolidation."""
         self._seq += 1
         seq = self._seq
         payload = serialize(request, f"{srv_type}_Request")
@@ -349,8 +362,7 @@ class StandIn:
             if rseq != seq or att[17:] != self.gid:
                 self.rejected.append(f"reply for sequence {rseq}, not {seq}")
                 continue
-            return deserialize(reply.ok.payload.to_bytes(), f"{srv_type}_Response")
-        raise TimeoutError(f"no reply from {name}")
+            yield deserialize(reply.ok.payload.to_bytes(), f"{srv_type}_Response")
 
     def service_available(self, name: str, srv_type: str) -> bool:
         """As GraphCache::service_server_is_available: an SS token of that name and type."""

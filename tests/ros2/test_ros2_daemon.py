@@ -338,6 +338,7 @@ def _reaches(frame: str, root: str, parents: dict[str, str]) -> bool:
         ([], {"ROS_DOMAIN_ID": "abc"}, "ROS_DOMAIN_ID must be a whole number"),
         (["--ros-world-frame", "/world"], {}, "--ros-world-frame must be a tf frame name"),
         (["--ros-distro", "iron"], {}, "invalid choice"),
+        (["--ros-serve-router", "--ros-mode", "client"], {}, "leave out --ros-mode client"),
     ],
 )
 def test_bad_ros_flags_are_one_clear_line(args: list[str], env: dict[str, str], message: str) -> None:

@@ -132,11 +132,9 @@ class FleetAdapter:
                 return False
             for key in {request.name, request.namespace or request.name}:
                 if key not in self._own and self.members.alive(key):
-                    pending.error(
-                        FleetError(
-                            ErrorCode.ALREADY_EXISTS, f"Entity [{key}] already exists (on another daemon)", "name"
-                        )
-                    )
+                    field = "name" if key == request.name else "namespace"
+                    message = f"Entity [{key}] already exists (on another daemon)"
+                    pending.error(FleetError(ErrorCode.ALREADY_EXISTS, message, field))
                     return False
         elif isinstance(request, DeleteRequest) and not self._answers_delete(request.name):
             pending.skip()

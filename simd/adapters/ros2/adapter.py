@@ -8,6 +8,10 @@ TwistStamped), the whole fleet on ``/tf`` and each robot's fixed frames on ``/tf
 on ``/clock``, and gazebo_ros' ``/spawn_entity`` and ``/delete_entity``. Liveliness tokens make
 all of it visible to ``ros2 node|topic|service list`` and RViz.
 
+In a fleet shared by several daemons (``simd --join``) each daemon shows its own robots, under a
+node of its own (``/fleetsim_<id>``), and one of them speaks for the fleet: it alone publishes
+``/clock`` and serves the services, which ask the whole fleet (shared_fleet.py).
+
 Like the fleet adapter it encodes and sends on a thread of its own (an :class:`Outbox`), in the
 engine's order, and builds a message only while somebody subscribes to its topic.
 """
@@ -29,6 +33,7 @@ from simd.adapters.ros2.command_intake import RosCommandIntake
 from simd.adapters.ros2.interfaces import Distro
 from simd.adapters.ros2.robot_ports import Participant, RobotPorts, RosPublisher
 from simd.adapters.ros2.service_server import ServiceServer
+from simd.adapters.ros2.shared_fleet import FleetRequests, SharedFleet, Speaker, engine_ask
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
 from simd.core.snapshot import TickSnapshot
@@ -42,6 +47,11 @@ log = logging.getLogger(__name__)
 NODE_NAME = "fleetsim"
 
 
+def node_name(daemon_id: str | None = None) -> str:
+    """The daemon's own node: ``fleetsim``, or ``fleetsim_<id>`` for each daemon of a shared fleet."""
+    return f"{NODE_NAME}_{daemon_id}" if daemon_id else NODE_NAME
+
+
 @dataclass(frozen=True)
 class RosOptions:
     domain_id: int = 0
@@ -51,9 +61,12 @@ class RosOptions:
 
 
 class Ros2Adapter:
-    """Serves one engine to one ROS domain on one zenoh session."""
+    """Serves one engine to one ROS domain on one zenoh session (and, with ``shared``, speaks
+    for the fleet when its turn comes)."""
 
-    def __init__(self, session: zenoh.Session, engine: Engine, options: RosOptions) -> None:
+    def __init__(
+        self, session: zenoh.Session, engine: Engine, options: RosOptions, shared: SharedFleet | None = None
+    ) -> None:
         self.engine = engine
         self.options = options
         p = self.participant = Participant(session, options.domain_id, options.distro)
@@ -67,18 +80,31 @@ class Ros2Adapter:
         self._joints = cdr.JointStateCdr()
         self._dt = engine.sim.config.dt
         self._tokens: list[Any] = []
-        node = self.node = p.node("/", NODE_NAME)
+        node = self.node = p.node("/", node_name(shared.daemon_id if shared is not None else None))
         self._tokens.append(session.liveliness().declare_token(node.token()))
-        self.clock_pub = RosPublisher(
-            p, node, p.topic("/clock", "rosgraph_msgs/msg/Clock"), graph.CLOCK_QOS, self._tokens
-        )
         self.tf_pub = RosPublisher(p, node, p.topic("/tf", "tf2_msgs/msg/TFMessage"), graph.TF_QOS, self._tokens)
         self.robots: dict[str, RobotPorts] = {}
         self.outbox = Outbox("ros2-out")
         self.commands = RosCommandIntake(p, self._known)
-        self.services = ServiceServer(
-            p, node, engine, self.outbox, [*gazebo_services.SERVICES, *simulation_services.services()]
-        )
+        # the fleet's voice (/clock and the services): declared while this daemon speaks for the
+        # fleet, which a lone daemon always does; touched on the outbox thread only
+        self.clock_pub: RosPublisher | None = None
+        self.services: ServiceServer | None = None
+        self._voice_tokens: list[Any] = []
+        self._sent_stamp: tuple[int, int] | None = None  # the (sec, nanosec) last put on /clock
+        self._time: float | None = None  # the latest sim time heard of
+        self.speaker: Speaker | None = None
+        self._heard_speaker: str | None = None  # the speaker last logged
+        self._closing = False
+        if shared is None:
+            self._ask = engine_ask(engine.submit)
+            self._follow_speaker()
+        else:
+            self._ask = FleetRequests(shared.session, shared.keys, self._dt).ask
+            # it says when it has settled, and whenever the speaker changes
+            self.speaker = Speaker(
+                session, shared.keys, shared.daemon_id, options.domain_id, options.distro, self._speaker_changed
+            )
         engine.attach(self)
 
     def _known(self, namespace: str) -> bool:
@@ -108,15 +134,63 @@ class Ros2Adapter:
         return self.commands.dropped
 
     def close(self) -> None:
-        self.services.close()
+        self._closing = True  # a change of speaker heard from now on declares nothing
+        if self.speaker is not None:
+            self.speaker.close()
+        self.outbox.put(self._fall_silent)  # no service call taken once the outbox has stopped
         self.commands.close()
         self.outbox.close()
         for ports in self.robots.values():
             ports.close()
         self.robots.clear()
-        for pub in (self.clock_pub, self.tf_pub):
-            pub.undeclare()
+        self.tf_pub.undeclare()
         undeclare_all(self._tokens)
+
+    # -- the fleet's voice --------------------------------------------------------------------------
+
+    def _speaker_changed(self) -> None:
+        self.outbox.put(self._follow_speaker)
+
+    def _follow_speaker(self) -> None:
+        """Declare /clock and the services when this daemon speaks for the fleet, undeclare
+        them when it no longer does (another daemon took over)."""
+        if self._closing:
+            return
+        speaks = True
+        if self.speaker is not None:
+            who = self.speaker.speaker()
+            if who is None:
+                return  # still listening for the daemons already there
+            speaks = who == self.speaker.daemon_id
+            if who != self._heard_speaker:
+                self._heard_speaker = who
+                if speaks:
+                    log.info("this daemon speaks for the fleet on ROS 2: /clock and the services")
+                else:
+                    log.info("daemon %r speaks for the fleet on ROS 2: /clock and the services", who)
+        if speaks and self.clock_pub is None:
+            self._speak()
+        elif not speaks and self.clock_pub is not None:
+            self._fall_silent()
+
+    def _speak(self) -> None:
+        p, node = self.participant, self.node
+        clock = p.topic("/clock", "rosgraph_msgs/msg/Clock")
+        self.clock_pub = RosPublisher(p, node, clock, graph.CLOCK_QOS, self._voice_tokens)
+        services = [*gazebo_services.SERVICES, *simulation_services.services()]
+        self.services = ServiceServer(p, node, self._ask, self.outbox, services)
+        if self.speaker is not None and self._time is not None:  # taking over: the time now
+            self._publish_clock(self._time)
+
+    def _fall_silent(self) -> None:
+        if self.services is not None:
+            self.services.close()
+            self.services = None
+        if self.clock_pub is not None:
+            self.clock_pub.undeclare()
+            self.clock_pub = None
+        undeclare_all(self._voice_tokens)
+        self._sent_stamp = None
 
     # -- the outbox thread ------------------------------------------------------------------------
 
@@ -138,8 +212,13 @@ class Ros2Adapter:
             ports.last_linear = None
 
     def _publish_clock(self, t: float) -> None:
-        if self.clock_pub.wanted:
-            self.clock_pub.put(cdr.clock_cdr(t))
+        """Each sim time once on /clock (a step's last tick is also the clock of the pause after it)."""
+        self._time = t
+        pub = self.clock_pub
+        stamp = cdr.stamp(t)  # the tick's time and the clock's (rounded to ns) are one stamp
+        if pub is not None and pub.wanted and stamp != self._sent_stamp:
+            pub.put(cdr.clock_cdr(t))
+            self._sent_stamp = stamp
 
     def _publish_tick(self, snap: TickSnapshot) -> None:
         self._publish_clock(snap.time)

@@ -11,7 +11,9 @@ Like the fleet protocol's actions, a service acts only on its exact key: a wildc
 (somebody looking around) gets no answer and changes nothing.
 
 What a service does lives in its handler (gazebo_services.py, simulation_services.py): it gets
-a :class:`Call` with the decoded request, asks the engine through it, and answers once.
+a :class:`Call` with the decoded request, asks the simulation through it, and answers once. The
+simulation is this daemon's engine, or, in a fleet shared by several daemons, the whole fleet
+through its protocol (shared_fleet.py).
 """
 
 from __future__ import annotations
@@ -27,33 +29,29 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys.store import Typestore
 
 from protocol.control import Request
-from protocol.errors import FleetError
 from simd.adapters.ros2 import graph
 from simd.adapters.ros2.interfaces import typestore
 from simd.adapters.ros2.robot_ports import Participant
+from simd.adapters.ros2.shared_fleet import Answer, Ask
 from simd.adapters.zenoh_entities import undeclare_all
-from simd.engine import Engine
 from simd.engine.outbox import Outbox
-from simd.engine.ports import Result
 
 log = logging.getLogger(__name__)
 
 #: The largest request payload decoded (the xml of a SpawnEntity is the big one).
 MAX_REQUEST_BYTES = (1 << 20) + 4096  # a SpawnEntity's xml may have 1 MiB (gazebo_services.MAX_XML_BYTES)
 
-Answer = Callable[[Result | FleetError], None]
-
 
 class Call:
-    """One service call on its way: the request, the engine to ask, the one answer to give."""
+    """One service call on its way: the request, the simulation to ask, the one answer to give."""
 
     def __init__(self, name: str, request: Any, response_type: str, store: Typestore,
-                 engine: Engine, send: Callable[[bytes], None], outbox: Outbox) -> None:  # fmt: skip
+                 ask: Ask, send: Callable[[bytes], None], outbox: Outbox) -> None:  # fmt: skip
         self.name = name
         self.request = request
         self._response_type = response_type
         self._store = store
-        self._engine = engine
+        self._ask = ask
         self._send = send
         self._outbox = outbox
         self._answered = False
@@ -77,11 +75,8 @@ class Call:
         self._outbox.put(lambda: self._send(payload))
 
     def ask(self, request: Request, then: Answer) -> None:
-        """Submit ``request`` to the engine; ``then`` gets its result or error (busy included)."""
-        try:
-            self._engine.submit(request, then)
-        except FleetError as e:
-            then(e)
+        """Ask the simulation; ``then`` gets its result or error (busy included), once."""
+        self._ask(request, then)
 
 
 Handler = Callable[[Call], None]
@@ -127,11 +122,11 @@ class Service:
 
 
 class ServiceServer:
-    """Serves services through the engine; replies leave through the outbox."""
+    """Serves services by asking the simulation (``ask``); replies leave through the outbox."""
 
-    def __init__(self, p: Participant, node: graph.Node, engine: Engine, outbox: Outbox,
+    def __init__(self, p: Participant, node: graph.Node, ask: Ask, outbox: Outbox,
                  services: list[Service]) -> None:  # fmt: skip
-        self.engine = engine
+        self.ask = ask
         self.outbox = outbox
         self._store = typestore(p.distro)
         self._entities: list[Any] = []
@@ -164,7 +159,7 @@ class ServiceServer:
                     query.drop()
 
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            call = Call(service.name, None, response_type, store, self.engine, send, self.outbox)
+            call = Call(service.name, None, response_type, store, self.ask, send, self.outbox)
             if len(payload) > MAX_REQUEST_BYTES:
                 self._malformed(service, call, f"request of {len(payload)} bytes is larger than {MAX_REQUEST_BYTES}")
                 return

@@ -1,0 +1,293 @@
+"""ROS 2 output of a fleet that several daemons share (``simd --join --ros2``): one voice.
+
+Every daemon shows its own robots to ROS (their nodes, topics, ``/tf`` and ``/tf_static``), but
+a ROS user must see one simulator: one ``/clock``, one ``/spawn_entity`` that answers once. So
+of the daemons that serve one ROS domain for one fleet, exactly one *speaks for the fleet*: it
+publishes ``/clock`` and declares the services, and the services ask the fleet through its own
+protocol (``P/spawn``, ``P/delete``, ``P/robots``, ``P/clock``, ``P/sim/*``). A ROS spawn is
+then placed by name as ``fleet spawn`` places it, a name stays unique across the daemons, a
+delete reaches the robot's daemon, a step or a pause reaches every daemon, and the ROS caller
+gets one reply, the fleet's.
+
+Who speaks (:class:`Speaker`): every such daemon declares the liveliness token
+``P/daemons/<id>/ros2/<domain>/<distro>/<since>`` on its ROS session and follows the others'
+(with history); the one that has served longest (the smallest ``since``, then the smallest
+id) speaks. Every daemon computes the same from the same tokens. A daemon that joins never
+takes over, so there is no moment with two speakers; when the speaker leaves, its tokens go
+with its session and the next in line starts at once. Only daemons that serve ROS take part
+(a ``--join`` daemon without ``--ros2`` never wins and leaves the fleet mute), and only those
+on one domain and distro (the keys of ``/clock`` differ between them).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import zenoh
+
+from protocol.codec import MSGPACK, decode, encode
+from protocol.control import (
+    REQUESTS,
+    Clock,
+    ClockRequest,
+    DeleteRequest,
+    ListRequest,
+    PauseRequest,
+    Request,
+    ResumeRequest,
+    RobotRecord,
+    SpawnRequest,
+    StepReply,
+    StepRequest,
+)
+from protocol.control import RobotList as RecordList
+from protocol.errors import ErrorCode, ErrorReply, FleetError
+from protocol.keys import Keys
+from simd.core.models import MODELS
+from simd.core.snapshot import RobotState
+from simd.engine.ports import Result, RobotList, StepResult
+
+log = logging.getLogger(__name__)
+
+Answer = Callable[[Result | FleetError], None]
+#: Ask the simulation something: the answer comes once, on any thread.
+Ask = Callable[[Request, Answer], None]
+
+#: How long a service waits for the fleet's answer (rmw_zenoh's client gives up after 10 s too).
+FORWARD_TIMEOUT_S = 10.0
+#: How long a daemon that has just joined listens for the others before it may speak.
+SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class SharedFleet:
+    """What the ROS adapter of a ``--join`` daemon needs of the fleet: its session (the fleet
+    protocol's, not the ROS one), its keys and this daemon's id."""
+
+    session: zenoh.Session
+    keys: Keys
+    daemon_id: str
+
+
+class Speaker:
+    """Whether this daemon speaks for the fleet in its ROS domain; ``changed`` is called (on a
+    thread of zenoh's) whenever that may have changed: read :meth:`speaks` then.
+
+    A daemon that has just joined says nothing for ``settle_s``: the other daemons' tokens reach
+    a new session over some milliseconds (a liveliness query right after the session opened
+    came back empty now and then), and a newcomer that spoke before hearing of them would speak
+    beside the daemon that already does."""
+
+    def __init__(self, ros_session: zenoh.Session, keys: Keys, daemon_id: str, domain: int, distro: str,
+                 changed: Callable[[], None], since_ns: int | None = None,
+                 settle_s: float = SETTLE_S) -> None:  # fmt: skip
+        self.daemon_id = daemon_id
+        self._changed = changed
+        self._head = keys.daemon("")
+        self._lock = threading.Lock()
+        since = time.time_ns() if since_ns is None else since_ns
+        self._own = keys.daemon_ros2(daemon_id, domain, distro, since)
+        self._serving: dict[str, tuple[int, str]] = {self._own: (since, daemon_id)}  # token -> (since, id)
+        self._settled = False
+        liveliness = ros_session.liveliness()
+        self._token = liveliness.declare_token(self._own)
+        pattern = keys.daemon_ros2("*", domain, distro, "*")
+        self._sub = liveliness.declare_subscriber(pattern, self._on_token, history=True)
+        self._timer = threading.Timer(settle_s, self._settle)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _settle(self) -> None:
+        with self._lock:
+            self._settled = True
+        self._changed()
+
+    def _on_token(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        parts = key[len(self._head) :].split("/") if key.startswith(self._head) else []
+        try:
+            entry = (int(parts[-1]), parts[0])
+        except (IndexError, ValueError):
+            return  # not one of ours
+        with self._lock:
+            before = self._first()
+            if sample.kind == zenoh.SampleKind.PUT:
+                self._serving[key] = entry
+            elif key != self._own:
+                self._serving.pop(key, None)
+            moved = self._settled and self._first() != before
+        if moved:
+            self._changed()
+
+    def _first(self) -> str:
+        return min(self._serving.values())[1]
+
+    def speaker(self) -> str | None:
+        """The id of the daemon that speaks for the fleet, as far as this one knows (None while
+        this one settles)."""
+        with self._lock:
+            return self._first() if self._settled else None
+
+    def speaks(self) -> bool:
+        return self.speaker() == self.daemon_id
+
+    def close(self) -> None:
+        self._timer.cancel()
+        for entity in (self._sub, self._token):
+            try:
+                entity.undeclare()
+            except zenoh.ZError:
+                pass
+
+
+# -- asking the fleet -----------------------------------------------------------------------------
+
+#: How the daemons' replies to a request make one answer: ``first`` (the one daemon that owns
+#: the answer replies: a spawn placed by name, the clock), ``any`` (every daemon replies; one
+#: good reply is the answer, a refusal only when none is good: a delete, the list, pause,
+#: resume, reset), ``every`` (all must have acted: a step)
+Gather = Literal["first", "any", "every"]
+_GATHER: dict[type[Any], Gather] = {
+    SpawnRequest: "first",
+    ClockRequest: "first",
+    DeleteRequest: "any",
+    ListRequest: "any",
+    PauseRequest: "any",
+    ResumeRequest: "any",
+    StepRequest: "every",
+}
+_REPLY: dict[type[Any], type[Any]] = {
+    SpawnRequest: RobotRecord,
+    DeleteRequest: RobotRecord,
+    ListRequest: RecordList,
+    StepRequest: StepReply,
+}
+_KIND = {request: kind for kind, request in REQUESTS.items()}
+
+
+class FleetRequests:
+    """Requests asked of the whole fleet through its protocol, as ``fleet`` asks them (zenoh
+    target *all*, no consolidation), the daemons' replies made one answer as the engine gives
+    it. Nothing blocks: the replies come on zenoh's threads and the answer with the last one."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, tick_s: float) -> None:
+        self.session = session
+        self.keys = keys
+        self.tick_s = tick_s
+
+    def ask(self, request: Request, then: Answer) -> None:
+        kind = _KIND[type(request)]
+        key = getattr(self.keys, kind)
+        gather = _GATHER.get(type(request), "any")
+        reply_type = _REPLY.get(type(request), Clock)
+        timeout = FORWARD_TIMEOUT_S
+        if isinstance(request, StepRequest):
+            timeout += request.ticks * self.tick_s  # a long step answers when it is done
+        replies: list[Any] = []
+        errors: list[FleetError] = []
+        lock = threading.Lock()
+        answered = [False]
+
+        def answer(result: Result | FleetError) -> None:
+            with lock:
+                if answered[0]:
+                    return
+                answered[0] = True
+            try:
+                then(result)
+            except Exception:  # the handler's bug: logged, the fleet goes on
+                log.exception("answering %s failed", kind)
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None:
+                try:
+                    message = decode(reply.ok.payload.to_bytes(), reply_type)
+                except FleetError as e:
+                    errors.append(e)
+                    return
+                if gather == "first":
+                    return answer(_result(request, [message]))
+                replies.append(message)
+            else:
+                assert reply.err is not None
+                err = _error(reply.err.payload.to_bytes(), key, timeout)
+                if gather == "first":
+                    return answer(err)
+                errors.append(err)
+
+        def on_done() -> None:
+            if replies and not (errors and gather == "every"):
+                return answer(_result(request, replies))
+            answer(errors[0] if errors else FleetError(ErrorCode.UNAVAILABLE, f"no daemon of the fleet answered {key}"))
+
+        bare = isinstance(request, (ListRequest, ClockRequest, PauseRequest, ResumeRequest))
+        try:
+            self.session.get(
+                f"{key}?format=msgpack",
+                zenoh.handlers.Callback(on_reply, on_done),
+                payload=None if bare else encode(request),
+                encoding=MSGPACK,
+                target=zenoh.QueryTarget.ALL,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=timeout,
+            )
+        except zenoh.ZError as e:
+            answer(FleetError(ErrorCode.UNAVAILABLE, f"cannot ask the fleet on {key}: {e}"))
+
+
+def _error(raw: bytes, key: str, timeout: float) -> FleetError:
+    if raw == b"Timeout":
+        return FleetError(ErrorCode.TIMEOUT, f"the fleet did not answer {key} within {timeout:g} s")
+    try:
+        return FleetError.from_reply(decode(raw, ErrorReply))
+    except FleetError:
+        return FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace"))
+
+
+def _result(request: Request, replies: list[Any]) -> Result:
+    """The engine's kind of answer from the daemons' messages."""
+    first = replies[0]
+    if isinstance(first, RobotRecord):
+        return robot_state(first)
+    if isinstance(first, RecordList):
+        robots = sorted((r for rl in replies for r in rl.robots), key=lambda r: r.name)
+        return RobotList(max(rl.stamp.to_seconds() for rl in replies), [robot_state(r) for r in robots])
+    if isinstance(first, StepReply):
+        ticks = min(r.ticks_run for r in replies)
+        return StepResult(first, ticks, any(r.cancelled for r in replies))
+    assert isinstance(first, Clock)
+    return first
+
+
+def robot_state(record: RobotRecord) -> RobotState:
+    """A robot as the engine reports it, from the fleet's record (no sideways velocity: the
+    record has none)."""
+    p, s = record.pose, record.spawn_pose
+    return RobotState(
+        name=record.name,
+        namespace=record.namespace,
+        model=MODELS[record.model],
+        x=p.x,
+        y=p.y,
+        yaw=p.yaw,
+        linear_velocity=record.linear_velocity,
+        angular_velocity=record.angular_velocity,
+        spawn_pose=(s.x, s.y, s.yaw),
+    )
+
+
+def engine_ask(submit: Callable[[Request, Answer], None]) -> Ask:
+    """Ask one daemon's own engine (``Engine.submit``; busy comes back as the answer)."""
+
+    def ask(request: Request, then: Answer) -> None:
+        try:
+            submit(request, then)
+        except FleetError as e:
+            then(e)
+
+    return ask
