@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import zenoh
 
-from protocol.codec import MSGPACK, decode, encode
+from protocol.codec import MAX_REPLY_BYTES, MSGPACK, decode, encode
 from protocol.control import (
     REQUESTS,
     Clock,
@@ -206,7 +206,7 @@ class FleetRequests:
         def on_reply(reply: zenoh.Reply) -> None:
             if reply.ok is not None:
                 try:
-                    message = decode(reply.ok.payload.to_bytes(), reply_type)
+                    message = decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES)
                 except FleetError as e:
                     errors.append(e)
                     return
