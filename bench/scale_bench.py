@@ -11,7 +11,8 @@ each seeing several others: bench/arena.py); one subscriber process on the fleet
 (``P/odometry``, ``P/scans``) through the router, counting every robot's rows; the N robots
 spawned through the router (each placed on a daemon by its name) and driven by the wander
 driver (``--drive-hz``, 2 by default: the daemons keep the last command). After ``--settle``
-seconds, a window of ``--duration`` seconds: each daemon's RTF from its own clock
+seconds, and once every daemon answers its clock within 0.5 s again (``settled_s`` in the
+record), a window of ``--duration`` seconds: each daemon's RTF from its own clock
 (``P/daemons/<id>/clock``) at both ends, the odometry rows and scans delivered against what the
 daemons simulated, and the CPU of every process (/proc).
 
@@ -64,6 +65,24 @@ def _daemon_clock(fleet: Fleet, daemon_id: str) -> tuple[float, int]:
     if not ok:
         raise RuntimeError(f"daemon {daemon_id} did not answer its clock: {payload}")
     return time.monotonic(), decode(payload, Clock).tick
+
+
+def _steady_clocks(fleet: Fleet, ids: list[str], within: float = 0.5, wait: float = 60.0) -> dict[str, Any]:
+    """Every daemon's clock, once they all answer within ``within`` s again. The driver's first
+    round declares a publisher for each robot, and through a router the daemons answer late for
+    a few seconds after (6 s at 6 000 robots on 3 daemons): the window starts after that."""
+    deadline = time.monotonic() + wait
+    while True:
+        asked = time.monotonic()
+        try:
+            clocks = {d: _daemon_clock(fleet, d) for d in ids}
+        except RuntimeError:
+            if time.monotonic() > deadline:
+                raise
+            continue
+        if max(t for t, _ in clocks.values()) - asked < within * len(ids) or time.monotonic() > deadline:
+            return clocks
+        time.sleep(0.5)
 
 
 def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict[str, Any]:
@@ -128,7 +147,8 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
             while time.monotonic() - t_settle < args.settle:
                 progress.update(f"{label} settle {time.monotonic() - t_settle:4.1f}/{args.settle:g} s")
                 time.sleep(0.2)
-            c0 = {d: _daemon_clock(fleet, d) for d in ids}
+            c0 = _steady_clocks(fleet, ids)
+            out["settled_s"] = time.monotonic() - t_settle
             s0 = sub.snapshot()
             t0 = time.monotonic()
             cpu0 = {p: proc_cpu_seconds(proc.pid) for p, proc in procs.items()}
