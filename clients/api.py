@@ -29,6 +29,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from clients.tick_merge import TickMerge
 from protocol.codec import MAX_REPLY_BYTES, decode, encode
 from protocol.control import (
     Clock,
@@ -57,16 +58,16 @@ DEFAULT_TIMEOUT = 3.0
 class Subscription:
     """A live subscription; ``close()`` (or leaving a ``with`` block) ends it."""
 
-    def __init__(self, entity: Any) -> None:
-        self._entity = entity
+    def __init__(self, *entities: Any) -> None:
+        self._entities = list(entities)
 
     def close(self) -> None:
-        if self._entity is not None:
+        for entity in self._entities:
             try:
-                self._entity.undeclare()
+                entity.undeclare()
             except zenoh.ZError:
                 pass
-            self._entity = None
+        self._entities.clear()
 
     def __enter__(self) -> Subscription:
         return self
@@ -444,7 +445,8 @@ class FleetClient:
 
     # -- the whole fleet, one message a tick --------------------------------------------------
 
-    def _subscribe_fleet(self, key: str, type_: type[T], callback: Callable[[T], None]) -> Subscription:
+    def _subscribe_fleet(self, key: str, type_: type[T], callback: Callable[[T], None], *more: Any) -> Subscription:
+        """A subscriber of one fleet topic, decoded (``more``: entities that end with it)."""
         dec = msgspec.msgpack.Decoder(type_)
 
         def handler(sample: zenoh.Sample) -> None:
@@ -454,7 +456,7 @@ class FleetClient:
                 return
             callback(msg)
 
-        sub = Subscription(self.session.declare_subscriber(key, handler))
+        sub = Subscription(self.session.declare_subscriber(key, handler), *more)
         self._subs.append(sub)
         return sub
 
@@ -464,8 +466,26 @@ class FleetClient:
         One message a tick instead of one per robot: the way to follow a whole fleet, and the
         only one that keeps up with a hundred robots at 20x real time in Python.
         ``fleet_odom.array("x")`` is a numpy view, row ``i`` being ``fleet_odom.namespaces[i]``.
+        In a fleet shared by several daemons each puts its own robots' rows: their parts of a
+        tick are merged into one message (clients/tick_merge.py), so the callback sees what one
+        daemon would give.
         """
-        return self._subscribe_fleet(self.keys.fleet_odom, FleetOdometry, callback)
+        live: set[str] = set()
+        head = self.keys.daemon("")
+
+        def on_daemon(sample: zenoh.Sample) -> None:
+            daemon_id = str(sample.key_expr)[len(head) :]
+            if sample.kind == zenoh.SampleKind.PUT:
+                live.add(daemon_id)
+            else:
+                live.discard(daemon_id)
+
+        daemons = self.session.liveliness().declare_subscriber(self.keys.daemon("*"), on_daemon, history=True)
+        for reply in self.session.liveliness().get(self.keys.daemon("*"), timeout=self.timeout):  # known at once
+            if reply.ok is not None:
+                live.add(str(reply.ok.key_expr)[len(head) :])
+        merger = TickMerge(lambda: len(live), callback)
+        return self._subscribe_fleet(self.keys.fleet_odom, FleetOdometry, merger.add, daemons)
 
     def on_fleet_scans(self, callback: Callable[[FleetScans], None]) -> Subscription:
         """``callback(fleet_scans)`` once a tick with the scans taken in it (``P/scans``);

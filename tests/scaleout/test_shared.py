@@ -15,6 +15,7 @@ import pytest
 from clients import FleetClient, wait_until
 from clients.api import observed_arrays
 from protocol import FleetError
+from protocol.messages import FleetOdometry
 from protocol.placement import owner
 from tests.conftest import ROOT, simd_command
 from tests.scaleout.test_router import _start, _stop, _wait_for, router  # noqa: F401  (the router fixture)
@@ -157,7 +158,12 @@ def test_one_clock_steps_every_daemon_and_merges_what_they_observe(
             on_b = next(n for n in names if owner(n, ["a", "b"]) == "b")
             c.spawn(on_a, 0.0, 0.0)
             c.spawn(on_b, 0.0, 3.0)
-            reply = c.step(30, cmd_vel={on_a: (0.2, 0.0), on_b: (0.1, 0.0)}, observe=[on_b, on_a])
+            ticks: list[FleetOdometry] = []
+            with c.on_fleet_odom(ticks.append):  # each daemon puts its own rows: one message a tick
+                reply = c.step(30, cmd_vel={on_a: (0.2, 0.0), on_b: (0.1, 0.0)}, observe=[on_b, on_a])
+                assert wait_until(lambda: len(ticks) == 30, 5.0), [m.namespaces for m in ticks]
+            assert all(sorted(m.namespaces) == sorted([on_a, on_b]) for m in ticks), [m.namespaces for m in ticks]
+            assert [round(m.stamp.to_seconds() * 30) for m in ticks] == list(range(1, 31))
             assert reply.ticks_run == 30 and sorted(reply.observations) == sorted([on_a, on_b])
             x_a = reply.observations[on_a].odom.pose.pose.position.x
             x_b = reply.observations[on_b].odom.pose.pose.position.x
