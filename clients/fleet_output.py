@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import msgspec
 
 from clients.naming import natural_key
-from protocol.control import Clock, RobotRecord, WorldInfo
+from protocol.control import DEFAULT_DAEMON_ID, Clock, RobotRecord, WorldInfo
 from protocol.errors import ErrorReply
 from protocol.keys import DEFAULT_PREFIX
 from protocol.zenoh_config import DEFAULT_ENDPOINT
@@ -87,9 +87,10 @@ def teleop_command(namespace: str, args: argparse.Namespace, program: str = "fle
 def describe_spawn(rec: RobotRecord, teleop: str) -> list[str]:
     """The lines ``fleet spawn`` prints for a spawned robot; ``teleop`` drives it."""
     p = rec.pose
+    where = f" on daemon {rec.daemon}" if rec.daemon not in ("", DEFAULT_DAEMON_ID) else ""  # a shared fleet's
     lines = [
         f"spawned {rec.name} ({rec.model}) in namespace {rec.namespace} "
-        f"at x {p.x:.3f} m, y {p.y:.3f} m, yaw {p.yaw:.3f} rad ({math.degrees(p.yaw):.1f}°)"
+        f"at x {p.x:.3f} m, y {p.y:.3f} m, yaw {p.yaw:.3f} rad ({math.degrees(p.yaw):.1f}°){where}"
     ]
     if rec.topics is not None:
         t = rec.topics

@@ -176,6 +176,10 @@ class RobotRecord(msgspec.Struct, kw_only=True):
     daemon: str = ""
 
 
+#: The id of a daemon started without ``--id``.
+DEFAULT_DAEMON_ID = "simd"
+
+
 class RobotList(msgspec.Struct, kw_only=True):
     stamp: Time
     robots: list[RobotRecord]

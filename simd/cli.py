@@ -12,6 +12,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from types import FrameType
 
+from protocol.control import DEFAULT_DAEMON_ID
 from protocol.errors import FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
@@ -48,11 +49,11 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_true",
         help="share the prefix with the other --join daemons on the network: each spawn is placed on one of them "
         "by its name, lists are merged, robots on other daemons are seen and felt here, pause/resume/reset/step "
-        "reach every daemon (in progress: docs/scale-out.md)",
+        "reach every daemon (docs/scale-out.md)",
     )
     p.add_argument(
         "--id",
-        default="simd",
+        default=DEFAULT_DAEMON_ID,
         help="this daemon's name in the fleet (its liveliness token P/daemons/ID; fleet daemons lists them; "
         "default: %(default)s)",
     )

@@ -132,6 +132,12 @@ def test_a_spawn_is_described_with_its_topics_limits_and_hint() -> None:
         "  limits: ±0.22 m/s, ±2.84 rad/s",
         "  drive it: fleet-teleop TB3_1",
     ]
+    for daemon, said in [("", ""), ("simd", ""), ("b", " on daemon b")]:  # a shared fleet names the daemon
+        first = describe_spawn(msgspec.structs.replace(r, daemon=daemon), "fleet-teleop TB3_1")[0]
+        assert (
+            first
+            == f"spawned burger_1 (burger) in namespace TB3_1 at x -2.000 m, y -0.500 m, yaw 1.571 rad (90.0°){said}"
+        )  # noqa: E501
 
 
 @pytest.mark.parametrize(
