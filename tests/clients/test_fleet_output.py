@@ -137,7 +137,7 @@ def test_a_spawn_is_described_with_its_topics_limits_and_hint() -> None:
         assert (
             first
             == f"spawned burger_1 (burger) in namespace TB3_1 at x -2.000 m, y -0.500 m, yaw 1.571 rad (90.0°){said}"
-        )  # noqa: E501
+        )
 
 
 @pytest.mark.parametrize(
