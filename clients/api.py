@@ -30,7 +30,7 @@ import numpy.typing as npt
 import zenoh
 
 from clients.tick_merge import TickMerge
-from protocol.codec import MAX_REPLY_BYTES, decode, encode
+from protocol.codec import MAX_REPLY_BYTES, decode, encode, reply_error
 from protocol.control import (
     Clock,
     DaemonInfo,
@@ -45,7 +45,7 @@ from protocol.control import (
     StepRequest,
     WorldInfo,
 )
-from protocol.errors import ErrorCode, ErrorReply, FleetError
+from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
 from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions, zenoh_error_text
@@ -74,6 +74,8 @@ class Subscription:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    undeclare = close  # a subscription can hold another (it ends with it)
 
 
 class FleetClient:
@@ -170,14 +172,7 @@ class FleetClient:
         """The error an error reply carries (a timeout, a structured refusal, or garbage)."""
         err = reply.err
         assert err is not None
-        raw = err.payload.to_bytes()
-        if raw == b"Timeout":
-            return FleetError(ErrorCode.TIMEOUT, f"the daemon did not answer {key} within {deadline:g} s")
-        try:
-            info = decode(raw, ErrorReply)
-        except FleetError:
-            return FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace"))
-        return FleetError.from_reply(info)
+        return reply_error(err.payload.to_bytes(), f"the daemon did not answer {key} within {deadline:g} s")
 
     def _unavailable(self, key: str) -> FleetError:
         return FleetError(
@@ -471,16 +466,8 @@ class FleetClient:
         daemon would give.
         """
         live: set[str] = set()
+        daemons = self.on_daemons(lambda daemon_id, alive: (live.add if alive else live.discard)(daemon_id))
         head = self.keys.daemon("")
-
-        def on_daemon(sample: zenoh.Sample) -> None:
-            daemon_id = str(sample.key_expr)[len(head) :]
-            if sample.kind == zenoh.SampleKind.PUT:
-                live.add(daemon_id)
-            else:
-                live.discard(daemon_id)
-
-        daemons = self.session.liveliness().declare_subscriber(self.keys.daemon("*"), on_daemon, history=True)
         for reply in self.session.liveliness().get(self.keys.daemon("*"), timeout=self.timeout):  # known at once
             if reply.ok is not None:
                 live.add(str(reply.ok.key_expr)[len(head) :])

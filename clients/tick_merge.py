@@ -16,14 +16,12 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 
-from protocol.messages import FleetOdometry, Time
+from protocol.messages import FLEET_ODOM_COLUMNS, FleetOdometry, Time
 
 #: later ticks begun before a tick still missing a part is handed on without it
 HOLD_TICKS = 3
 #: a part this much older than the newest tick handed on is a new run (a reset), not a late part
 RESET_SECONDS = 1.0
-
-_COLUMNS = ("x", "y", "yaw", "linear_x", "linear_y", "angular_z")
 
 
 def _key(stamp: Time) -> int:
@@ -34,7 +32,7 @@ def merge(parts: list[FleetOdometry]) -> FleetOdometry:
     """The parts of one tick as one message, rows in the order the parts came."""
     if len(parts) == 1:
         return parts[0]
-    columns = {c: b"".join(getattr(p, c) for p in parts) for c in _COLUMNS}
+    columns = {c: b"".join(getattr(p, c) for p in parts) for c in FLEET_ODOM_COLUMNS}
     return FleetOdometry(stamp=parts[0].stamp, namespaces=[ns for p in parts for ns in p.namespaces], **columns)
 
 

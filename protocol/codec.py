@@ -13,7 +13,7 @@ from typing import Any, Literal, TypeVar
 
 import msgspec
 
-from protocol.errors import ErrorCode, FleetError
+from protocol.errors import ErrorCode, ErrorReply, FleetError
 
 T = TypeVar("T")
 Format = Literal["msgpack", "json"]
@@ -99,3 +99,14 @@ def encode(obj: Any, fmt: Format = "msgpack") -> bytes:
 
 def media_type(fmt: Format) -> str:
     return JSON if fmt == "json" else MSGPACK
+
+
+def reply_error(raw: bytes, timeout_message: str) -> FleetError:
+    """The error a query's error reply carries: zenoh's own ``Timeout`` (told as
+    ``timeout_message``), a daemon's structured refusal, or anything else as malformed."""
+    if raw == b"Timeout":
+        return FleetError(ErrorCode.TIMEOUT, timeout_message)
+    try:
+        return FleetError.from_reply(decode(raw, ErrorReply))
+    except FleetError:
+        return FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace"))

@@ -30,7 +30,7 @@ from typing import Any, Literal
 
 import zenoh
 
-from protocol.codec import MAX_REPLY_BYTES, MSGPACK, decode, encode
+from protocol.codec import MAX_REPLY_BYTES, MSGPACK, decode, encode, reply_error
 from protocol.control import (
     REQUESTS,
     Clock,
@@ -46,7 +46,7 @@ from protocol.control import (
     StepRequest,
 )
 from protocol.control import RobotList as RecordList
-from protocol.errors import ErrorCode, ErrorReply, FleetError
+from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
 from simd.core.models import MODELS
 from simd.core.snapshot import RobotState
@@ -215,7 +215,7 @@ class FleetRequests:
                 replies.append(message)
             else:
                 assert reply.err is not None
-                err = _error(reply.err.payload.to_bytes(), key, timeout)
+                err = reply_error(reply.err.payload.to_bytes(), f"the fleet did not answer {key} within {timeout:g} s")
                 if gather == "first":
                     return answer(err)
                 errors.append(err)
@@ -238,15 +238,6 @@ class FleetRequests:
             )
         except zenoh.ZError as e:
             answer(FleetError(ErrorCode.UNAVAILABLE, f"cannot ask the fleet on {key}: {e}"))
-
-
-def _error(raw: bytes, key: str, timeout: float) -> FleetError:
-    if raw == b"Timeout":
-        return FleetError(ErrorCode.TIMEOUT, f"the fleet did not answer {key} within {timeout:g} s")
-    try:
-        return FleetError.from_reply(decode(raw, ErrorReply))
-    except FleetError:
-        return FleetError(ErrorCode.MALFORMED, raw.decode("utf-8", "replace"))
 
 
 def _result(request: Request, replies: list[Any]) -> Result:
