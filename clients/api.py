@@ -528,9 +528,9 @@ def _merge_steps(replies: list[StepReply], observe: list[str]) -> StepReply:
         packed = PackedObservations(
             names=[names[k] for k in order],
             samples=samples,
-            odom=odom[order].tobytes(),
-            scan_time=scan_time[order].tobytes(),
-            ranges=ranges[order].tobytes(),
+            odom=odom[order].data,
+            scan_time=scan_time[order].data,
+            ranges=ranges[order].data,
         )
     return msgspec.structs.replace(
         replies[0],

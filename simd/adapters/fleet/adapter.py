@@ -193,9 +193,10 @@ class FleetAdapter:
             packed = PackedObservations(
                 names=p.names,
                 samples=p.ranges.shape[1],
-                odom=np.ascontiguousarray(p.odom, dtype="<f8").tobytes(),  # one copy, not two
-                scan_time=np.ascontiguousarray(p.scan_time, dtype="<f8").tobytes(),
-                ranges=np.ascontiguousarray(p.ranges, dtype="<f4").tobytes(),
+                # views on the arrays: the encoder copies them once, into the reply
+                odom=np.ascontiguousarray(p.odom, dtype="<f8").data,
+                scan_time=np.ascontiguousarray(p.scan_time, dtype="<f8").data,
+                ranges=np.ascontiguousarray(p.ranges, dtype="<f4").data,
             )
             return StepReply(**fields, ticks_run=result.ticks_run, cancelled=result.cancelled, packed=packed)
         spec = self.spec
