@@ -179,13 +179,13 @@ static PyObject *report(PyObject *self, PyObject *args) {
         double d = yaw[i] - yaw0[i];
         double dyaw = atan2(sin(d), cos(d));
         int free_motion = fabs(ax - dx[i]) < tol && fabs(ay - dy[i]) < tol && fabs(dyaw - w[i] * dt) < tol;
-        double mid = yaw0[i] + 0.5 * dyaw;
-        double c = cos(mid), s = sin(mid);
         if (free_motion) {
             vx[i] = v[i];
             vy[i] = 0.0;
             wz[i] = w[i];
-        } else {
+        } else { /* the mid-tick heading only for the achieved motion: most robots move freely */
+            double mid = yaw0[i] + 0.5 * dyaw;
+            double c = cos(mid), s = sin(mid);
             vx[i] = (ax * c + ay * s) / dt;
             vy[i] = (-ax * s + ay * c) / dt;
             wz[i] = dyaw / dt;

@@ -122,6 +122,8 @@ class Ghosts:
         return the world velocities (vx, vy, w rows, in the order the physics was given) that
         take each to its pose in one tick of ``dt``; a ghost that would jump, or that just
         became a body, is put there (and gets zero)."""
+        if not len(self.names) and not self._bodies:
+            return None  # a world of its own (every daemon not in a shared fleet): nothing to do
         physics = self._physics
         near = self._near(own_x, own_y) if len(self.names) and len(own_x) else np.zeros(len(self.names), dtype=bool)
         idx = np.flatnonzero(near)

@@ -91,6 +91,8 @@ class Simulation:
         self.robots = RobotTable()
         self._next_rid = 0
         self._phase_load = [0] * self.config.scan_every
+        self._due_of: list[str] | None = None  # the namespaces list _due_by_tick was worked out for
+        self._due_by_tick: list[I64] = []
         self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
         self._last_scans: Future[F32] | None = None
         #: robots simulated elsewhere (another daemon of a shared fleet), seen and felt here
@@ -357,7 +359,7 @@ class Simulation:
             t.odom_x, t.odom_y, t.odom_yaw = t.x, t.y, t.yaw
         self.tick += 1
 
-        due = np.flatnonzero((self.tick - t.phase) % cfg.scan_every == 0)
+        due = self._due_rows(t)[self.tick % cfg.scan_every]
         scans: F32 | Future[F32]
         if len(due) == 0:
             scans = np.zeros((0, cfg.lidar.samples), dtype=np.float32)
@@ -381,6 +383,18 @@ class Simulation:
             epoch=self.epoch,
             scan_index=due,
         )
+
+    def _due_rows(self, t: RobotTable) -> list[I64]:
+        """The table rows whose lidar fires on a tick, by the tick's place in the scan period
+        (a robot scans when ``(tick - phase) % scan_every == 0``). Worked out again only when
+        the table changes: rows and phases move only with a spawn or delete, which replace the
+        table's ``namespaces`` list."""
+        if self._due_of is not t.namespaces:
+            k = self.config.scan_every
+            period_tick = t.phase % k
+            self._due_by_tick = [np.flatnonzero(period_tick == r) for r in range(k)]
+            self._due_of = t.namespaces
+        return self._due_by_tick
 
     def _slip(self, old_x: F64, old_y: F64, old_yaw: F64) -> tuple[F64, F64, F64]:
         """Odometry from the wheels' travel with slip: each wheel's share of the tick's true motion
