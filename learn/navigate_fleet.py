@@ -38,6 +38,7 @@ from learn.task import (
     F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
+    KeepClear,
     check_settings,
     collided_many,
     command_many,
@@ -179,34 +180,33 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
 
     def _place(self) -> bool:
         """Every robot at a free start with its goal; False if one starts in contact."""
-        taken: list[tuple[float, float]] = []
+        taken = KeepClear()
         for a in self.possible_agents:
             x, y, yaw = self._free_pose(taken)
             if self.remote is not None:  # the local core only checks places (starts are a metre apart)
                 self.remote.spawn(a, x, y, yaw, model=self.model.name)
             else:
                 self.sim.spawn(SpawnRequest(name=a, model=self.model.name, x=x, y=y, yaw=yaw))
-            taken.append((x, y))
+            taken.add(x, y)
         for i in range(len(self.possible_agents)):
             gx, gy, _ = self._free_pose(taken)
             self._goal[i] = (gx, gy)
-            taken.append((gx, gy))
+            taken.add(gx, gy)
         self._goal_tuples = [(float(x), float(y)) for x, y in self._goal.tolist()]
         self._command[:] = 0.0
         everyone = np.arange(len(self.possible_agents))
         self._take_scans(self._advance(everyone))
         return not bool(np.any(collided_many(self._scan, self._footprint)))
 
-    def _free_pose(self, taken: list[tuple[float, float]]) -> tuple[float, float, float]:
+    def _free_pose(self, taken: KeepClear) -> tuple[float, float, float]:
         try:
-            return free_pose(self.sim, self.model, self._rng, tuple(taken), self.region, tries=DRAWS_A_PLACE)
+            return free_pose(self.sim, self.model, self._rng, taken, self.region, tries=DRAWS_A_PLACE)
         except RuntimeError:
             raise _NoPlace from None
 
     def _remove_all(self) -> None:
         """Every robot of this env out of the world (here, and on the daemon)."""
-        for s in self.sim.states():
-            self.sim.delete(s.name)
+        self.sim.delete_many([r.name for r in self.sim.robots.robots])
         if self.daemon is not None:
             self.daemon.remove_own()
 

@@ -53,6 +53,7 @@ class Physics:
             s.friction = 0.0
         self.space.add(*shapes)
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
+        self._probes: dict[str, tuple[pymunk.Body, list[pymunk.Shape]]] = {}  # model name -> blocker's probe
         self._rid_of_body: dict[int, int] = {}  # pymunk's body id -> robot id (Body.id is slow to read)
         self._ghosts: dict[str, pymunk.Body] = {}  # robots simulated elsewhere, by namespace
         self._ghost_key_of_body: dict[int, str] = {}
@@ -97,7 +98,12 @@ class Physics:
     def blocker(self, model: RobotModel, x: float, y: float, yaw: float) -> int | None:
         """What the footprint at this pose would overlap: -1 for static geometry, a robot
         id for a robot, None if the place is free."""
-        body, shapes = self._make_body(model)
+        # one probe body per model, moved from query to query (never added to the space):
+        # placing a thousand robots asks this some ten thousand times
+        probe = self._probes.get(model.name)
+        if probe is None:
+            probe = self._probes[model.name] = self._make_body(model)
+        body, shapes = probe
         body.position = (x, y)
         body.angle = yaw
         for s in shapes:

@@ -245,10 +245,24 @@ class Simulation:
         robot = self.robots.find(key)
         if robot is None:
             raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
-        last = self.state(robot)
-        self.physics.remove_robot(robot.rid)
-        self.robots.remove(robot)
-        self._phase_load[robot.scan_phase] -= 1
+        return self.delete_many([key])[0]
+
+    def delete_many(self, keys: list[str]) -> list[RobotState]:
+        """Remove the robots with these names or namespaces at once (an environment clearing
+        its fleet); their last states, in the order asked. Nothing is removed if one is
+        missing or named twice."""
+        robots = [self.robots.find(key) for key in keys]
+        for key, robot in zip(keys, robots, strict=True):
+            if robot is None:
+                raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
+        found = [r for r in robots if r is not None]
+        if len({r.rid for r in found}) < len(found):
+            raise FleetError(ErrorCode.INVALID_VALUE, "a robot is named twice", "name")
+        last = [self.state(r) for r in found]
+        for robot in found:
+            self.physics.remove_robot(robot.rid)
+            self._phase_load[robot.scan_phase] -= 1
+        self.robots.remove_many(found)
         return last
 
     # -- control ------------------------------------------------------------------------

@@ -46,3 +46,25 @@ def test_an_unknown_column_is_refused_and_the_table_is_unchanged() -> None:
     with pytest.raises(TypeError, match="no such column: speed"):
         t.append(robot(0, "a"), speed=1.0)
     assert len(t) == 0 and t.find("a") is None and len(t.x) == 0
+
+
+def test_removing_many_at_once_leaves_what_removing_them_one_by_one_leaves() -> None:
+    def table() -> tuple[RobotTable, list[Robot]]:
+        t = RobotTable()
+        robots = [robot(k, f"r{k}", f"ns{k}") for k in range(7)]
+        for k, r in enumerate(robots):
+            t.append(r, rid=k, x=float(k), outline=r.model.outline)
+        return t, robots
+
+    many, robots = table()
+    many.remove_many([robots[5], robots[0], robots[3]])
+    one, robots_one = table()
+    for k in (5, 0, 3):
+        one.remove(robots_one[k])
+    assert many.namespaces == one.namespaces == ["ns1", "ns2", "ns4", "ns6"]
+    for name in RobotTable.columns():
+        np.testing.assert_array_equal(getattr(many, name), getattr(one, name), err_msg=name)
+    assert [r.name for r in many.robots] == ["r1", "r2", "r4", "r6"]
+    assert many.row_of("ns6") == 3 and many.find("r0") is None and many.find("ns3") is None
+    many.remove_many([])
+    assert len(many) == 4

@@ -265,3 +265,21 @@ def test_collision_boxes_cover_exactly_the_footprint(model: str) -> None:
     outline = Polygon(m.outline)
     assert union.symmetric_difference(outline).area < 1e-12
     assert outline.area > 0.01
+
+
+def test_deleting_many_robots_at_once_and_its_bad_requests() -> None:
+    sim = Simulation(load_world("empty"))
+    for k in range(5):
+        sim.spawn(SpawnRequest(name=f"r{k}", x=float(k) - 2.0))
+    for keys, code in ((["r1", "nobody"], ErrorCode.NOT_FOUND), (["r1", "r1"], ErrorCode.INVALID_VALUE)):
+        with pytest.raises(FleetError) as e:
+            sim.delete_many(keys)
+        assert e.value.code is code
+        assert len(sim.states()) == 5  # nothing removed
+    last = sim.delete_many(["r3", "r0"])
+    assert [s.name for s in last] == ["r3", "r0"] and last[0].x == pytest.approx(1.0)
+    assert [s.name for s in sim.states()] == ["r1", "r2", "r4"]
+    sim.spawn(SpawnRequest(name="r0", x=-2.0))  # its place is free again, in the physics too
+    for _ in range(7):
+        out = sim.step()
+    assert out.namespaces == ["r1", "r2", "r4", "r0"] and len(out.scan_index) <= 4

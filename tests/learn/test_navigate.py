@@ -10,10 +10,12 @@ import gymnasium
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 import learn  # noqa: F401  (registers the environments)
 from learn.navigate import NavigateEnv
-from learn.task import GOAL_RADIUS
+from learn.task import GOAL_RADIUS, KeepClear
 from tests.conftest import free_port
 
 
@@ -305,3 +307,17 @@ def test_a_fleet_that_fits_is_placed_whatever_the_seed() -> None:
         observations, _ = env.reset(seed=seed)
         assert len(observations) == 7
     env.close()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    points=st.lists(st.tuples(st.floats(-5, 5), st.floats(-5, 5)), max_size=40),
+    x=st.floats(-6, 6),
+    y=st.floats(-6, 6),
+)
+def test_the_keep_clear_cells_answer_as_checking_every_point_does(
+    points: list[tuple[float, float]], x: float, y: float
+) -> None:
+    """Places are kept a metre from other robots' starts and goals; the cells that make this
+    fast for a thousand robots must find exactly what a check of every point finds."""
+    assert KeepClear(points).near(x, y) == any(math.dist((x, y), p) < 1.0 for p in points)
