@@ -121,6 +121,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self._goal_tuples: list[tuple[float, float]] = []
         self._rows_for: tuple[list[str], list[str]] | None = None  # what _table_rows was found for
         self._table_rows = np.zeros(0, dtype=np.int64)
+        self._agent_of_row = np.zeros(0, dtype=np.int64)  # the agent of each table row (-1: none)
         self.steps = 0
         self.publish = publish
         self.daemon = (
@@ -262,11 +263,11 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             dict(zip(agents, infos, strict=True)),
         )
         leaving = [a for k, a in enumerate(agents) if done_l[k] or late_l[k]]
-        for a in leaving:  # it leaves the episode, and the world
-            if self.remote is not None:
+        if self.remote is not None:  # it leaves the episode, and the world
+            for a in leaving:
                 self.remote.delete(a)
-            else:
-                self.sim.delete(a)
+        elif leaving:
+            self.sim.delete_many(leaving)
         if leaving:
             gone = set(leaving)
             self.agents = [a for a in agents if a not in gone]
@@ -310,6 +311,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         if self._rows_for != (t.namespaces, names):  # the table's rows move only with a spawn or delete
             self._table_rows = np.array([t.row_of(a) for a in names], dtype=np.int64)
             self._rows_for = (t.namespaces, names)
+            self._agent_of_row = np.full(len(t), -1, dtype=np.int64)  # for the scans, by table row
+            self._agent_of_row[self._table_rows] = live
         table_rows = self._table_rows
         v, w = self._command[live, 0], self._command[live, 1]
         snaps = []
@@ -322,9 +325,11 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
 
     def _take_scans(self, snaps: list[TickSnapshot]) -> None:
         """Keep the scans of these ticks (waiting for the lidar thread if it is still casting)."""
-        for snap in snaps:
-            if snap.scan_namespaces:
-                self._scan[[self._index[ns] for ns in snap.scan_namespaces]] = snap.scans
+        for snap in snaps:  # the table did not change during the ticks: its rows are the agents'
+            if len(snap.scan_index):
+                agents = self._agent_of_row[snap.scan_index]
+                mine = agents >= 0
+                self._scan[agents[mine]] = snap.scans[mine] if not mine.all() else snap.scans
 
     def _look(self, live: npt.NDArray[np.int64]) -> tuple[F32, npt.NDArray[np.float64]]:
         """The live agents' observations, and their distances to their goals."""
