@@ -407,6 +407,8 @@ class Simulation:
             k = self.config.scan_every
             period_tick = t.phase % k
             self._due_by_tick = [np.flatnonzero(period_tick == r) for r in range(k)]
+            for rows in self._due_by_tick:  # handed out tick after tick (TickSnapshot.scan_index)
+                rows.flags.writeable = False
             self._due_of = t.namespaces
         return self._due_by_tick
 
