@@ -528,9 +528,9 @@ def _merge_steps(replies: list[StepReply], observe: list[str]) -> StepReply:
         packed = PackedObservations(
             names=[names[k] for k in order],
             samples=samples,
-            odom=odom[order].data,
-            scan_time=scan_time[order].data,
-            ranges=ranges[order].data,
+            odom=_byte_view(odom[order]),
+            scan_time=_byte_view(scan_time[order]),
+            ranges=_byte_view(ranges[order]),
         )
     return msgspec.structs.replace(
         replies[0],
@@ -539,6 +539,12 @@ def _merge_steps(replies: list[StepReply], observe: list[str]) -> StepReply:
         observations=observations,
         packed=packed,
     )
+
+
+def _byte_view(array: npt.NDArray[Any]) -> memoryview:
+    """A read-only, flat byte view of a fresh array: what a decoded reply's fields are."""
+    array.flags.writeable = False
+    return array.data.cast("B")
 
 
 @dataclass(frozen=True)

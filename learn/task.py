@@ -148,12 +148,15 @@ class KeepClear:
 
 
 def free_pose(
-    sim: Simulation, model: RobotModel, rng: np.random.Generator, keep_clear: KeepClear | None = None,
-    region: Reachable | None = None, tries: int = 10_000,
+    sim: Simulation, model: RobotModel, rng: np.random.Generator,
+    keep_clear: KeepClear | Iterable[tuple[float, float]] = (), region: Reachable | None = None, tries: int = 10_000,
 ) -> tuple[float, float, float]:  # fmt: skip
     """A pose where the footprint is clear with 15 cm to spare each way, inside the bounds, in
     ``region`` (where the robot can drive from the world's spawn, learn/reach.py), and at least
-    a metre from the points in ``keep_clear`` (other robots' starts and goals)."""
+    a metre from the points in ``keep_clear`` (other robots' starts and goals; a
+    :class:`KeepClear` that the caller adds to as it places, or any points)."""
+    if not isinstance(keep_clear, KeepClear):
+        keep_clear = KeepClear(keep_clear)
     x0, x1, y0, y1 = sim.world.bounds
     pad = 0.3
     for _ in range(tries):
@@ -161,7 +164,7 @@ def free_pose(
         yaw = float(rng.uniform(-math.pi, math.pi))
         if region is not None and not region.contains(x, y):
             continue
-        if keep_clear is not None and keep_clear.near(x, y):
+        if keep_clear.near(x, y):
             continue
         try:
             sim.validate_spawn(SpawnRequest(name="probe", model=model.name, x=x, y=y, yaw=yaw))

@@ -270,9 +270,10 @@ class PackedObservations(msgspec.Struct, kw_only=True):
     (a ``LaserScan.ranges`` each; NaN rows before the first). A robot deleted during the step
     is left out of ``names`` and of every array.
 
-    The arrays are memoryviews: decoded from msgpack they are views on the reply's bytes, not
-    copies (a thousand robots' scans are 1.4 MB a step, and a learner reads them every step);
-    any buffer (bytes, a contiguous numpy array) may be given when encoding."""
+    The arrays are read-only memoryviews of bytes: decoded from msgpack they are views on the
+    reply's bytes, not copies (a thousand robots' scans are 1.4 MB a step, and a learner reads
+    them every step); ``bytes(view)`` is a copy (to pickle, or to keep one field without the
+    whole reply). Any contiguous buffer (bytes, a numpy array) may be given when encoding."""
 
     names: list[str]
     samples: int

@@ -53,7 +53,8 @@ class Physics:
             s.friction = 0.0
         self.space.add(*shapes)
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
-        self._probes: dict[str, tuple[pymunk.Body, list[pymunk.Shape]]] = {}  # model name -> blocker's probe
+        #: model name -> the blocker's probe body for that model
+        self._probes: dict[str, tuple[RobotModel, pymunk.Body, list[pymunk.Shape]]] = {}
         self._rid_of_body: dict[int, int] = {}  # pymunk's body id -> robot id (Body.id is slow to read)
         self._ghosts: dict[str, pymunk.Body] = {}  # robots simulated elsewhere, by namespace
         self._ghost_key_of_body: dict[int, str] = {}
@@ -101,9 +102,9 @@ class Physics:
         # one probe body per model, moved from query to query (never added to the space):
         # placing a thousand robots asks this some ten thousand times
         probe = self._probes.get(model.name)
-        if probe is None:
-            probe = self._probes[model.name] = self._make_body(model)
-        body, shapes = probe
+        if probe is None or probe[0] is not model:  # a model of the same name is another model
+            probe = self._probes[model.name] = (model, *self._make_body(model))
+        _, body, shapes = probe
         body.position = (x, y)
         body.angle = yaw
         for s in shapes:
