@@ -17,10 +17,11 @@ One module over the usual size on purpose: it is one class, the client's whole s
 
 from __future__ import annotations
 
+import collections
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -53,6 +54,9 @@ from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions, zenoh_error_te
 T = TypeVar("T")
 
 DEFAULT_TIMEOUT = 3.0
+#: Requests in flight in ``spawn_many`` / ``delete_many``: enough to hide the round trip,
+#: few enough that the daemon's request queue keeps room for everybody else's.
+PIPELINE_WINDOW = 64
 
 
 class Subscription:
@@ -199,6 +203,58 @@ class FleetClient:
         The pose may be any real numbers (numpy's too)."""
         req = SpawnRequest(name=name, namespace=namespace, model=model, x=float(x), y=float(y), yaw=float(yaw))
         return self._query(self.keys.spawn, req, RobotRecord)
+
+    def spawn_many(self, robots: Iterable[SpawnRequest], window: int = PIPELINE_WINDOW) -> list[RobotRecord]:
+        """Spawn these robots in this order, without waiting for each reply before sending the
+        next (up to ``window`` requests in flight): a thousand spawns take a few round trips'
+        time instead of a thousand. The daemon serves them in the order sent, so the fleet's
+        rows (and with them each robot's scan phase) are those of spawning one by one. Every
+        request is answered before anything is raised: a refused one raises the first refusal,
+        naming the robot, with the others spawned."""
+        return self._pipelined(self.keys.spawn, list(robots), window, lambda r: r.name)
+
+    def delete_many(self, names: Iterable[str], window: int = PIPELINE_WINDOW) -> list[RobotRecord]:
+        """Delete these robots in this order, pipelined as :meth:`spawn_many`; their last
+        records. A refused one (not found) raises the first refusal once all were answered."""
+        return self._pipelined(self.keys.delete, [DeleteRequest(name=n) for n in names], window, lambda r: r.name)
+
+    def _pipelined(
+        self, key: str, requests: Sequence[SpawnRequest | DeleteRequest], window: int,
+        name_of: Callable[[Any], str],
+    ) -> list[RobotRecord]:  # fmt: skip
+        """Send ``requests`` on ``key`` in order, at most ``window`` unanswered at a time; each
+        one's answer as :meth:`_query` (spawn) or :meth:`delete` would give it."""
+        if window < 1:
+            raise ValueError(f"window must be at least 1, got {window}")
+        in_flight: collections.deque[tuple[Any, Any]] = collections.deque()
+        records: list[RobotRecord] = []
+        refusal: FleetError | None = None
+
+        def answer() -> None:
+            nonlocal refusal
+            request, replies = in_flight.popleft()
+            found: RobotRecord | None = None
+            error: FleetError | None = None
+            for reply in replies:  # in a shared fleet the robot's daemon answers; others may say not found
+                if reply.ok is not None:
+                    found = decode(reply.ok.payload.to_bytes(), RobotRecord, MAX_REPLY_BYTES)
+                elif error is None:
+                    error = self._error(key, reply, self.timeout)
+            if found is not None:
+                records.append(found)
+            elif refusal is None:
+                err = error if error is not None else self._unavailable(key)
+                refusal = FleetError(err.code, f"{name_of(request)}: {err.message}", err.field)
+
+        for request in requests:
+            in_flight.append((request, self._ask(key, request, self.timeout)))
+            if len(in_flight) >= window:
+                answer()
+        while in_flight:
+            answer()
+        if refusal is not None:
+            raise refusal
+        return records
 
     def delete(self, name: str) -> RobotRecord:
         """Delete a robot by name or namespace; returns its last record. (In a shared fleet

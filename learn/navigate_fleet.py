@@ -182,13 +182,17 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
     def _place(self) -> bool:
         """Every robot at a free start with its goal; False if one starts in contact."""
         taken = KeepClear()
+        starts = []
         for a in self.possible_agents:
             x, y, yaw = self._free_pose(taken)
+            start = SpawnRequest(name=a, model=self.model.name, x=x, y=y, yaw=yaw)
             if self.remote is not None:  # the local core only checks places (starts are a metre apart)
-                self.remote.spawn(a, x, y, yaw, model=self.model.name)
+                starts.append(start)
             else:
-                self.sim.spawn(SpawnRequest(name=a, model=self.model.name, x=x, y=y, yaw=yaw))
+                self.sim.spawn(start)
             taken.add(x, y)
+        if self.remote is not None:  # in this order, as the in-process world spawns them
+            self.remote.spawn_many(starts)
         for i in range(len(self.possible_agents)):
             gx, gy, _ = self._free_pose(taken)
             self._goal[i] = (gx, gy)
@@ -263,9 +267,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             dict(zip(agents, infos, strict=True)),
         )
         leaving = [a for k, a in enumerate(agents) if done_l[k] or late_l[k]]
-        if self.remote is not None:  # it leaves the episode, and the world
-            for a in leaving:
-                self.remote.delete(a)
+        if self.remote is not None and leaving:  # it leaves the episode, and the world
+            self.remote.delete_many(leaving)
         elif leaving:
             self.sim.delete_many(leaving)
         if leaving:

@@ -171,6 +171,38 @@ def test_four_robots_spawned_at_once_each_on_its_own_namespace(daemon_factory: C
     assert yaws["TB3_1"] == yaws["TB3_2"] == yaws["TB3_4"] == 0.0
 
 
+def test_many_spawns_and_deletes_in_flight_are_served_in_the_order_sent(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
+    """A learner's env spawns its fleet with many requests in flight; the daemon's rows (and
+    scan phases) must be those of spawning one by one, or the episode differs from the
+    in-process one. A refusal among them names its robot, once all were answered."""
+    from protocol.control import SpawnRequest
+
+    daemon = daemon_factory("--lockstep", "--world", "empty", "--max-robots", "400")
+    c = daemon.client()
+    names = [f"r{(k * 37) % 300:03d}" for k in range(300)]  # not in name order
+    wanted = [SpawnRequest(name=n, x=-9.0 + (k % 30) * 0.6, y=-9.0 + (k // 30) * 0.6) for k, n in enumerate(names)]
+    records = c.spawn_many(wanted, window=32)
+    assert [r.name for r in records] == names
+    assert [r.name for r in c.robots()] == names  # the table, in the order sent
+    gone = names[::3]
+    assert [r.name for r in c.delete_many(gone)] == gone
+    assert [r.name for r in c.robots()] == [n for n in names if n not in set(gone)]
+    bad = [SpawnRequest(name="fresh_a", x=9.0, y=9.0), SpawnRequest(name=names[1], x=9.0, y=8.0),
+           SpawnRequest(name="fresh_b", x=9.0, y=7.0)]  # fmt: skip
+    with pytest.raises(FleetError) as e:
+        c.spawn_many(bad)
+    assert e.value.code is ErrorCode.ALREADY_EXISTS and e.value.message.startswith(f"{names[1]}: ")
+    assert {"fresh_a", "fresh_b"} <= {r.name for r in c.robots()}  # the others were spawned
+    with pytest.raises(FleetError) as e:
+        c.delete_many(["fresh_a", "nobody", "fresh_b"])
+    assert e.value.code is ErrorCode.NOT_FOUND and e.value.message.startswith("nobody: ")
+    assert not {"fresh_a", "fresh_b"} & {r.name for r in c.robots()}
+    with pytest.raises(ValueError, match="window"):
+        c.spawn_many(bad, window=0)
+
+
 def test_delete_list_and_liveliness(daemon: Daemon) -> None:
     c = daemon.client()
     events: list[tuple[str, bool]] = []
