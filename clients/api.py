@@ -211,12 +211,21 @@ class FleetClient:
         rows (and with them each robot's scan phase) are those of spawning one by one. Every
         request is answered before anything is raised: a refused one raises the first refusal,
         naming the robot, with the others spawned."""
-        return self._pipelined(self.keys.spawn, list(robots), window, lambda r: r.name)
+        requests = list(robots)
+        for r in requests:
+            if not isinstance(r, SpawnRequest):
+                raise TypeError(f"spawn_many takes SpawnRequest(name=..., x=..., y=...) items, got {r!r}")
+        return self._pipelined(self.keys.spawn, requests, window, lambda r: r.name)
 
     def delete_many(self, names: Iterable[str], window: int = PIPELINE_WINDOW) -> list[RobotRecord]:
         """Delete these robots in this order, pipelined as :meth:`spawn_many`; their last
         records. A refused one (not found) raises the first refusal once all were answered."""
-        return self._pipelined(self.keys.delete, [DeleteRequest(name=n) for n in names], window, lambda r: r.name)
+        requests = []
+        for n in names:
+            if not isinstance(n, str):
+                raise TypeError(f"delete_many takes robot names, got {n!r}")
+            requests.append(DeleteRequest(name=n))
+        return self._pipelined(self.keys.delete, requests, window, lambda r: r.name)
 
     def _pipelined(
         self, key: str, requests: Sequence[SpawnRequest | DeleteRequest], window: int,

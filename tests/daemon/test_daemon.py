@@ -201,6 +201,11 @@ def test_many_spawns_and_deletes_in_flight_are_served_in_the_order_sent(
     assert not {"fresh_a", "fresh_b"} & {r.name for r in c.robots()}
     with pytest.raises(ValueError, match="window"):
         c.spawn_many(bad, window=0)
+    with pytest.raises(TypeError, match="SpawnRequest"):
+        c.spawn_many([("r1", 0.0, 0.0)])  # type: ignore[list-item]
+    with pytest.raises(TypeError, match="names"):
+        c.delete_many([names[1], 7])  # type: ignore[list-item]
+    assert names[1] in {r.name for r in c.robots()}  # nothing sent
 
 
 def test_delete_list_and_liveliness(daemon: Daemon) -> None:
