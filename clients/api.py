@@ -207,8 +207,10 @@ class FleetClient:
     def spawn_many(self, robots: Iterable[SpawnRequest], window: int = PIPELINE_WINDOW) -> list[RobotRecord]:
         """Spawn these robots in this order, without waiting for each reply before sending the
         next (up to ``window`` requests in flight): a thousand spawns take a few round trips'
-        time instead of a thousand. The daemon serves them in the order sent, so the fleet's
-        rows (and with them each robot's scan phase) are those of spawning one by one. Every
+        time instead of a thousand. The daemon serves them in the order sent (one link carries
+        them in order, and zenoh runs a queryable's callback on one thread, first in first
+        out), so the fleet's rows (and with them each robot's scan phase) are those of
+        spawning one by one (tests/daemon/test_daemon.py checks it with 300 in flight). Every
         request is answered before anything is raised: a refused one raises the first refusal,
         naming the robot, with the others spawned."""
         requests = list(robots)
