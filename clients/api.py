@@ -151,10 +151,14 @@ class FleetClient:
         """Every daemon's answer (a fleet shared by several daemons: docs/scale-out.md), once
         all have answered; the first error when none answered well (``every``: when any
         refused), as :meth:`_query` raises it."""
+        deadline = self.timeout if timeout is None else timeout
+        return self._answers(key, self._ask(key, request, deadline), reply_type, deadline, every)
+
+    def _answers(self, key: str, replies: Any, reply_type: type[T], deadline: float, every: bool = False) -> list[T]:
+        """The answers among a query's ``replies``, as :meth:`_query_all` gives them."""
         found: list[T] = []
         error: FleetError | None = None
-        deadline = self.timeout if timeout is None else timeout
-        for reply in self._ask(key, request, deadline):
+        for reply in replies:
             if reply.ok is not None:
                 found.append(decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES))
             elif error is None:
@@ -217,7 +221,7 @@ class FleetClient:
         for r in requests:
             if not isinstance(r, SpawnRequest):
                 raise TypeError(f"spawn_many takes SpawnRequest(name=..., x=..., y=...) items, got {r!r}")
-        return self._pipelined(self.keys.spawn, requests, window, lambda r: r.name)
+        return self._pipelined(self.keys.spawn, requests, window)
 
     def delete_many(self, names: Iterable[str], window: int = PIPELINE_WINDOW) -> list[RobotRecord]:
         """Delete these robots in this order, pipelined as :meth:`spawn_many`; their last
@@ -227,35 +231,26 @@ class FleetClient:
             if not isinstance(n, str):
                 raise TypeError(f"delete_many takes robot names, got {n!r}")
             requests.append(DeleteRequest(name=n))
-        return self._pipelined(self.keys.delete, requests, window, lambda r: r.name)
+        return self._pipelined(self.keys.delete, requests, window)
 
-    def _pipelined(
-        self, key: str, requests: Sequence[SpawnRequest | DeleteRequest], window: int,
-        name_of: Callable[[Any], str],
-    ) -> list[RobotRecord]:  # fmt: skip
+    def _pipelined(self, key: str, requests: Sequence[SpawnRequest | DeleteRequest], window: int) -> list[RobotRecord]:
         """Send ``requests`` on ``key`` in order, at most ``window`` unanswered at a time; each
-        one's answer as :meth:`_query` (spawn) or :meth:`delete` would give it."""
+        one answered as :meth:`delete` takes its answer (in a shared fleet the robot's daemon
+        answers, others may say not found)."""
         if window < 1:
             raise ValueError(f"window must be at least 1, got {window}")
-        in_flight: collections.deque[tuple[Any, Any]] = collections.deque()
+        in_flight: collections.deque[tuple[SpawnRequest | DeleteRequest, Any]] = collections.deque()
         records: list[RobotRecord] = []
         refusal: FleetError | None = None
 
         def answer() -> None:
             nonlocal refusal
             request, replies = in_flight.popleft()
-            found: RobotRecord | None = None
-            error: FleetError | None = None
-            for reply in replies:  # in a shared fleet the robot's daemon answers; others may say not found
-                if reply.ok is not None:
-                    found = decode(reply.ok.payload.to_bytes(), RobotRecord, MAX_REPLY_BYTES)
-                elif error is None:
-                    error = self._error(key, reply, self.timeout)
-            if found is not None:
-                records.append(found)
-            elif refusal is None:
-                err = error if error is not None else self._unavailable(key)
-                refusal = FleetError(err.code, f"{name_of(request)}: {err.message}", err.field)
+            try:
+                records.append(self._answers(key, replies, RobotRecord, self.timeout)[0])
+            except FleetError as e:
+                if refusal is None:
+                    refusal = FleetError(e.code, f"{request.name}: {e.message}", e.field)
 
         for request in requests:
             in_flight.append((request, self._ask(key, request, self.timeout)))

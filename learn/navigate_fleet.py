@@ -267,11 +267,11 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             dict(zip(agents, infos, strict=True)),
         )
         leaving = [a for k, a in enumerate(agents) if done_l[k] or late_l[k]]
-        if self.remote is not None and leaving:  # it leaves the episode, and the world
-            self.remote.delete_many(leaving)
-        elif leaving:
-            self.sim.delete_many(leaving)
-        if leaving:
+        if leaving:  # it leaves the episode, and the world
+            if self.remote is not None:
+                self.remote.delete_many(leaving)
+            else:
+                self.sim.delete_many(leaving)
             gone = set(leaving)
             self.agents = [a for a in agents if a not in gone]
         return result

@@ -143,11 +143,10 @@ class RobotTable:
         where: int | list[int] = rows[0] if len(rows) == 1 else rows  # numpy slices for one row
         for name in self.columns():
             setattr(self, name, np.delete(getattr(self, name), where, axis=0))
-        if len(rows) == 1:  # a daemon's delete: slices, as fast as the list allows
-            self.robots = self.robots[: rows[0]] + self.robots[rows[0] + 1 :]
-        else:
-            gone = set(rows)
-            self.robots = [r for k, r in enumerate(self.robots) if k not in gone]
+        kept = list(self.robots)  # a new list: whoever holds the old one keeps it whole
+        for row in sorted(rows, reverse=True):
+            del kept[row]
+        self.robots = kept
         self.namespaces = [r.namespace for r in self.robots]
         self._row_of = {r.namespace: k for k, r in enumerate(self.robots)}
         for robot in robots:

@@ -242,9 +242,6 @@ class Simulation:
 
     def delete(self, key: str) -> RobotState:
         """Remove the robot with this name or namespace; return its last state."""
-        robot = self.robots.find(key)
-        if robot is None:
-            raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
         return self.delete_many([key])[0]
 
     def delete_many(self, keys: list[str]) -> list[RobotState]:

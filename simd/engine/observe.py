@@ -12,6 +12,7 @@ does. Both give the same arrays.
 from __future__ import annotations
 
 import collections
+import itertools
 from collections.abc import Sequence
 
 import numpy as np
@@ -37,20 +38,23 @@ class LatestScans:
     """
 
     def __init__(self, scan_every: int) -> None:
+        self._scan_every = scan_every
         self._by_namespace: dict[str, tuple[TickSnapshot, int]] = {}
-        self._recent: collections.deque[TickSnapshot] = collections.deque(maxlen=scan_every)
-        self._unindexed: collections.deque[TickSnapshot] = collections.deque(maxlen=scan_every + 1)
+        #: the newest snapshots: the last ``scan_every`` are the window, all may wait for the index
+        self._recent: collections.deque[TickSnapshot] = collections.deque(maxlen=scan_every + 1)
+        self._unindexed = 0  # how many of the newest in _recent the index has not seen
 
     def record(self, snap: TickSnapshot) -> None:
         self._recent.append(snap)
-        self._unindexed.append(snap)
+        self._unindexed = min(self._unindexed + 1, len(self._recent))
 
     def _index(self) -> None:
         by_namespace = self._by_namespace
-        for snap in self._unindexed:
+        recent = self._recent
+        for snap in itertools.islice(recent, len(recent) - self._unindexed, None):
             for i, ns in enumerate(snap.scan_namespaces):
                 by_namespace[ns] = (snap, i)
-        self._unindexed.clear()
+        self._unindexed = 0
 
     def get(self, namespace: str) -> tuple[TickSnapshot, int] | None:
         self._index()
@@ -63,18 +67,19 @@ class LatestScans:
     def clear(self) -> None:
         self._by_namespace.clear()
         self._recent.clear()
-        self._unindexed.clear()
+        self._unindexed = 0
 
     def _window(self, table: RobotTable) -> Sequence[TickSnapshot] | None:
         """The last ``scan_every`` snapshots, if they hold every robot's newest scan: the
         table's rows did not change over them (same namespaces list, same epoch)."""
         recent = self._recent
-        if len(recent) < (recent.maxlen or 0):
+        if len(recent) < self._scan_every:
             return None
-        epoch = recent[-1].epoch
-        if any(s.namespaces is not table.namespaces or s.epoch != epoch for s in recent):
+        window = list(itertools.islice(recent, len(recent) - self._scan_every, None))
+        epoch = window[-1].epoch
+        if any(s.namespaces is not table.namespaces or s.epoch != epoch for s in window):
             return None
-        return recent
+        return window
 
     def fill(
         self, table: RobotTable, rows: I64, samples: int
