@@ -58,13 +58,15 @@ def split_location(message: str) -> tuple[str, str | None]:
 class ShippedFiles:
     """YAML files shipped in a package folder and found by bare name, or any file by path.
 
-    A bare name has no path separator and no ``.yaml``/``.yml`` suffix; anything else is a path,
+    A bare name has no path separator and none of ``path_suffixes``; anything else is a path,
     so a local file never shadows a shipped one by accident.
     """
 
     kind: str  # "world", "fleet": used in messages
     directory: Path
     error: type[FileFormatError]
+    #: the endings that make a name without a separator a path (a world may also be a ``.map``)
+    path_suffixes: tuple[str, ...] = (".yaml", ".yml")
 
     def names(self) -> list[str]:
         return sorted(p.stem for p in self.directory.glob("*.yaml"))
@@ -82,7 +84,7 @@ class ShippedFiles:
             raise self.error(source, f"cannot read file: {exc.strerror or exc}") from None
 
     def _resolve(self, name_or_path: str | os.PathLike[str]) -> tuple[Path, str]:
-        if not (isinstance(name_or_path, str) and _is_bare_name(name_or_path)):
+        if not (isinstance(name_or_path, str) and _is_bare_name(name_or_path, self.path_suffixes)):
             return Path(name_or_path), os.fspath(name_or_path)
         available = self.names()
         if name_or_path not in available:
@@ -92,7 +94,7 @@ class ShippedFiles:
             raise self.error(
                 name_or_path,
                 f"unknown {self.kind}{hint} Available {self.kind}s: {listing}. "
-                "A file path must contain '/' or end in .yaml",
+                f"A file path must contain '/' or end in {_either(self.path_suffixes)}",
             )
         path = self.directory / f"{name_or_path}.yaml"
         return path, str(path)
@@ -103,6 +105,10 @@ class ShippedFiles:
         return ""
 
 
-def _is_bare_name(text: str) -> bool:
+def _either(words: tuple[str, ...]) -> str:
+    return " or ".join(words) if len(words) < 3 else f"{', '.join(words[:-1])} or {words[-1]}"
+
+
+def _is_bare_name(text: str, path_suffixes: tuple[str, ...]) -> bool:
     separators = {"/", os.sep} | ({os.altsep} if os.altsep else set())
-    return not any(s in text for s in separators) and not text.endswith((".yaml", ".yml"))
+    return not any(s in text for s in separators) and not text.endswith(path_suffixes)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import re
 import signal
@@ -40,8 +41,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--world",
         default="turtlebot3_world",
-        help="world name (turtlebot3_world, turtlebot3_house, empty), a world YAML file, or a map_server map's "
-        "YAML (map.yaml + its image: the occupied cells become walls)",
+        help="world name (turtlebot3_world, turtlebot3_house, empty), a world YAML file, a map_server map's "
+        "YAML (map.yaml + its image: the occupied cells become walls), or a MovingAI grid map (NAME.map: the "
+        "blocked cells become walls; see --cell-size)",
+    )
+    p.add_argument(
+        "--cell-size",
+        type=float,
+        default=0.5,  # simd.core.movingai.DEFAULT_CELL_SIZE_M, not imported before the flags are parsed
+        metavar="M",
+        help="the side of one cell of a MovingAI .map world in metres (0.5 fits a burger in a one-cell aisle; "
+        "waffles need 0.6); ignored for other worlds (default: %(default)s)",
     )
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix (default: %(default)s)")
     p.add_argument(
@@ -194,6 +204,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--seed must be >= 0")
     if not 0.0 <= args.odom_noise <= 0.5:
         return fail("--odom-noise must be in 0..0.5 (a fraction of each wheel's travel)")
+    if not (math.isfinite(args.cell_size) and args.cell_size > 0):
+        return fail(f"--cell-size must be a finite number of metres > 0, got {args.cell_size:g}")
     try:
         keys = Keys(args.prefix)
         check_name(args.id, "--id")
@@ -207,7 +219,7 @@ def main(argv: list[str] | None = None) -> int:
     from simd.core.worldfile import WorldFileError
 
     try:
-        world = load_world_or_map(args.world)
+        world = load_world_or_map(args.world, args.cell_size)
     except WorldFileError as e:
         return fail(str(e))
 

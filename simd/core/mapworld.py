@@ -9,6 +9,10 @@ short (turtlebot3_world mapped at 5 cm and loaded back: median 3.5 cm, 90 % with
 Free **and unknown** cells are open space (a SLAM map's unknown outside is beyond its walls
 anyway); the map's extent is the world's bounds. The default spawn is the free spot nearest the
 map's centre with room for a waffle around it. Maps with a rotated origin are refused.
+
+A MovingAI grid map (``simd --world warehouse.map --cell-size 0.5``, :mod:`simd.core.movingai`)
+becomes a world the same way, its blocked cells the boxes, with cells of the size asked for
+(the format has none). Its outside is impassable, so four thin walls close it.
 """
 
 from __future__ import annotations
@@ -19,7 +23,8 @@ import numpy as np
 import numpy.typing as npt
 
 from protocol.mapfile import FREE, MapFileError, OccupancyMap, read_map
-from simd.core.worldfile import SHIPPED_WORLDS, WorldFileError, WorldGeometry, load_world
+from simd.core.movingai import DEFAULT_CELL_SIZE_M, MovingAIMap, is_movingai, read_movingai
+from simd.core.worldfile import SHIPPED_WORLDS, FloatArray, WorldFileError, WorldGeometry, load_world
 
 #: cells at least this likely to be occupied are walls (the map saver's occupied threshold)
 OCCUPIED_FROM = 65
@@ -27,11 +32,17 @@ OCCUPIED_FROM = 65
 SPAWN_CLEARANCE_M = 0.25
 #: the most boxes a map may become (each is a physics shape and four lidar segments)
 MAX_BOXES = 200_000
+#: the thickness of the walls that close a MovingAI map, just outside its bounds
+CLOSING_WALL_M = 0.1
 
 
-def load_world_or_map(name_or_path: str) -> WorldGeometry:
-    """A shipped world by name, a world file, or a map_server map by its YAML's path."""
+def load_world_or_map(name_or_path: str, cell_size: float = DEFAULT_CELL_SIZE_M) -> WorldGeometry:
+    """A shipped world by name, a world file, a map_server map by its YAML's path, or a MovingAI
+    map (``*.map``, or a file that begins ``type ...``) with cells of ``cell_size`` metres (which
+    other worlds ignore)."""
     data, source = SHIPPED_WORLDS.read(name_or_path)
+    if is_movingai(data, source):
+        return world_from_movingai(read_movingai(data, source), source, cell_size)
     if is_map_file(data.decode("utf-8", errors="replace")):
         return load_map_world(source)
     return load_world(name_or_path)
@@ -103,14 +114,8 @@ def world_from_map(grid: OccupancyMap, source: str) -> WorldGeometry:
     if spawn is None:
         raise WorldFileError(source, f"no free spot with {SPAWN_CLEARANCE_M} m of room around it to spawn a robot")
     res = grid.resolution
-    polygons = []
-    for r0, r1, c0, c1 in boxes:  # flush with the cells: neighbouring boxes seal a diagonal wall
-        xa, xb, ya, yb = x0 + c0 * res, x0 + c1 * res, y0 + r0 * res, y0 + r1 * res
-        polygon = np.array([[xa, ya], [xb, ya], [xb, yb], [xa, yb]], dtype=np.float64)
-        polygon.setflags(write=False)
-        polygons.append(polygon)
-    circles = np.zeros((0, 3), dtype=np.float64)
-    circles.setflags(write=False)
+    # flush with the cells: neighbouring boxes seal a diagonal wall
+    polygons = [_box(x0 + c0 * res, x0 + c1 * res, y0 + r0 * res, y0 + r1 * res) for r0, r1, c0, c1 in boxes]
     name = source.rsplit("/", 1)[-1].removesuffix(".yaml").removesuffix(".yml")
     return WorldGeometry(
         name=name,
@@ -118,5 +123,51 @@ def world_from_map(grid: OccupancyMap, source: str) -> WorldGeometry:
         bounds=grid.bounds(),
         default_spawn=spawn,
         polygons=tuple(polygons),
-        circles=circles,
+        circles=_no_circles(),
     )
+
+
+def world_from_movingai(grid: MovingAIMap, source: str, cell_size: float) -> WorldGeometry:
+    """The map as a world with cells of ``cell_size`` metres, placed as
+    :class:`~simd.core.movingai.MovingAIMap` says (the lower-left corner at the origin, the first
+    text line on top): blocked cells as boxes, four walls of :data:`CLOSING_WALL_M` just outside
+    the bounds, and the default spawn at the centre of the passable cell nearest the middle."""
+    if not (math.isfinite(cell_size) and cell_size > 0):
+        raise ValueError(f"a cell size must be a finite number of metres > 0, got {cell_size}")
+    boxes = occupied_boxes(~grid.passable)
+    if len(boxes) > MAX_BOXES:
+        raise WorldFileError(source, f"the map's blocked cells make {len(boxes)} boxes, more than {MAX_BOXES}")
+    rows, cols = np.nonzero(grid.passable)
+    if rows.size == 0:
+        raise WorldFileError(source, "no passable cell to spawn a robot in")
+    i = int(np.argmin((rows - (grid.height - 1) / 2) ** 2 + (cols - (grid.width - 1) / 2) ** 2))
+    x, y = grid.cell_centre(int(rows[i]), int(cols[i]), cell_size)
+    c, h, t = cell_size, grid.height, CLOSING_WALL_M
+    top, right = h * c, grid.width * c
+    polygons = [_box(c0 * c, c1 * c, (h - r1) * c, (h - r0) * c) for r0, r1, c0, c1 in boxes]
+    polygons += [
+        _box(-t, right + t, -t, 0.0),  # below, with the corners
+        _box(-t, right + t, top, top + t),  # above, with the corners
+        _box(-t, 0.0, 0.0, top),  # left
+        _box(right, right + t, 0.0, top),  # right
+    ]
+    return WorldGeometry(
+        name=source.rsplit("/", 1)[-1].removesuffix(".map"),
+        source=source,
+        bounds=(0.0, right, 0.0, top),
+        default_spawn=(x, y, 0.0),
+        polygons=tuple(polygons),
+        circles=_no_circles(),
+    )
+
+
+def _box(x_min: float, x_max: float, y_min: float, y_max: float) -> FloatArray:
+    polygon = np.array([[x_min, y_min], [x_max, y_min], [x_max, y_max], [x_min, y_max]], dtype=np.float64)
+    polygon.setflags(write=False)
+    return polygon
+
+
+def _no_circles() -> FloatArray:
+    circles = np.zeros((0, 3), dtype=np.float64)
+    circles.setflags(write=False)
+    return circles

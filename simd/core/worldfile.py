@@ -41,7 +41,7 @@ class WorldFileError(FileFormatError):
     """A world that cannot be used, with where (file and location) and why."""
 
 
-SHIPPED_WORLDS = ShippedFiles("world", worlds.WORLDS_DIR, WorldFileError)
+SHIPPED_WORLDS = ShippedFiles("world", worlds.WORLDS_DIR, WorldFileError, (".yaml", ".yml", ".map"))
 
 
 # --- schema ---------------------------------------------------------------------------------

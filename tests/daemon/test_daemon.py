@@ -376,7 +376,7 @@ def test_help_lists_the_flags() -> None:
         timeout=20,
         cwd=ROOT,
     )
-    for flag in ("--world", "--prefix", "--seed", "--rtf", "--no-noise", "--cmd-timeout", "--max-robots",
+    for flag in ("--world", "--cell-size", "--prefix", "--seed", "--rtf", "--no-noise", "--cmd-timeout", "--max-robots",
                  "--lockstep", "--listen", "--connect", "--mode", "--config", "--cfg"):  # fmt: skip
         assert flag in p.stdout
 
