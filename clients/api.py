@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from clients.navigation import Goal
 from clients.tick_merge import TickMerge
 from protocol.codec import MAX_REPLY_BYTES, decode, encode, reply_error
 from protocol.control import (
@@ -49,6 +50,17 @@ from protocol.control import (
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
+from protocol.navigation import (
+    DEFAULT_TOLERANCE_M,
+    DEFAULT_YAW_TOLERANCE_RAD,
+    CancelRequest,
+    FleetNavigation,
+    NavigateReply,
+    NavigateRequest,
+    NavigationPath,
+    NavigationResult,
+    NavigationState,
+)
 from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions, zenoh_error_text
 
 T = TypeVar("T")
@@ -267,6 +279,105 @@ class FleetClient:
         the robot's daemon answers, and so may the daemon its name is placed on, with
         not found: the robot's answer wins.)"""
         return self._query_all(self.keys.delete, DeleteRequest(name=name), RobotRecord)[0]
+
+    # -- navigation (docs/navigation.md) -----------------------------------------------------
+
+    def navigate(
+        self,
+        robot: str,
+        x: float,
+        y: float,
+        yaw: float | None = None,
+        *,
+        tolerance: float = DEFAULT_TOLERANCE_M,
+        yaw_tolerance: float = DEFAULT_YAW_TOLERANCE_RAD,
+        timeout: float = 0.0,
+        goal_id: str = "",
+    ) -> Goal:
+        """Send ``robot`` (its namespace) to (x, y), arriving with heading ``yaw`` if given.
+        Returns a :class:`~clients.navigation.Goal` once the daemon accepted it: ``wait()``,
+        ``feedback``, ``cancel()``, ``result``. Raises FleetError if refused (a goal in a wall
+        or off the map, an unknown robot, a bad number): then nothing moves. ``timeout`` (s of
+        sim time, 0 = none) fails the goal with ``timeout`` when it runs out."""
+        req = NavigateRequest(
+            x=float(x),
+            y=float(y),
+            yaw=None if yaw is None else float(yaw),
+            tolerance=float(tolerance),
+            yaw_tolerance=float(yaw_tolerance),
+            timeout=float(timeout),
+            goal_id=goal_id,
+        )
+        goal = Goal(self, robot)  # listening before the goal goes out: its result cannot slip by
+        try:
+            reply = self._query_all(self.keys.navigate(robot), req, NavigateReply)[0]
+        except BaseException:
+            goal.close()
+            raise
+        goal._accepted(reply)
+        return goal
+
+    def send_goals(
+        self, robot_goals: Iterable[tuple[str, NavigateRequest]], window: int = PIPELINE_WINDOW
+    ) -> list[NavigateReply]:
+        """Send many robots their goals without waiting for each reply (as :meth:`spawn_many`);
+        the replies in order. A refused goal raises the first refusal, naming the robot, once
+        all were answered (the others stand)."""
+        if window < 1:
+            raise ValueError(f"window must be at least 1, got {window}")
+        in_flight: collections.deque[tuple[str, Any]] = collections.deque()
+        replies: list[NavigateReply] = []
+        refusal: FleetError | None = None
+
+        def answer() -> None:
+            nonlocal refusal
+            robot, pending = in_flight.popleft()
+            try:
+                replies.append(self._answers(self.keys.navigate(robot), pending, NavigateReply, self.timeout)[0])
+            except FleetError as e:
+                if refusal is None:
+                    refusal = FleetError(e.code, f"{robot}: {e.message}", e.field)
+
+        for robot, req in robot_goals:
+            in_flight.append((robot, self._ask(self.keys.navigate(robot), req, self.timeout)))
+            if len(in_flight) >= window:
+                answer()
+        while in_flight:
+            answer()
+        if refusal is not None:
+            raise refusal
+        return replies
+
+    def cancel_goal(self, robot: str, goal_id: str = "") -> NavigationResult:
+        """End the robot's goal (``goal_id`` empty: whichever it has); the goal's result."""
+        return self._query_all(self.keys.navigate_cancel(robot), CancelRequest(goal_id=goal_id), NavigationResult)[0]
+
+    def navigation_state(self, robot: str) -> NavigationState:
+        """The robot's current (or last) goal, its latest feedback and its result."""
+        return self._query_all(self.keys.navigate_state(robot), None, NavigationState)[0]
+
+    def plans(self, robot: str = "*") -> dict[str, NavigationPath]:
+        """The path each robot follows now (``robot`` a namespace or ``*``)."""
+        found = {}
+        for reply in self._ask(self.keys.plan(robot), None, self.timeout):
+            if reply.ok is not None:
+                path = decode(reply.ok.payload.to_bytes(), NavigationPath, MAX_REPLY_BYTES)
+                found[path.robot] = path
+        return found
+
+    def on_navigation(self, callback: Callable[[FleetNavigation], None]) -> Subscription:
+        """Call ``callback`` with the fleet's navigation summary (2 Hz of sim time: every
+        robot with a goal, its state and goal, and goals that ended since)."""
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                callback(decode(sample.payload.to_bytes(), FleetNavigation, MAX_REPLY_BYTES))
+            except FleetError:
+                pass
+
+        sub = Subscription(self.session.declare_subscriber(self.keys.fleet_navigation, on_sample))
+        self._subs.append(sub)
+        return sub
 
     def robots(self) -> list[RobotRecord]:
         """Every robot of the fleet, whichever daemon runs it (each daemon lists its own)."""

@@ -16,6 +16,13 @@ key                    declared by simd as         payload     reply / notes
 ``P/<ns>/odom``        publisher 30 Hz + queryable Odometry    a get returns the latest message
 ``P/<ns>/scan``        publisher 5 Hz + queryable  LaserScan   a get returns the latest message
 ``P/<ns>/alive``       liveliness token            --          present while the robot lives
+``P/<ns>/navigate``    queryable                   NavigateRequest  NavigateReply (protocol/navigation.py)
+``P/<ns>/navigate/cancel`` queryable               CancelRequest  NavigationResult of the ended goal
+``P/<ns>/navigate/state``  queryable               (none)      NavigationState
+``P/<ns>/navigate/feedback`` publisher 5 Hz        NavigationFeedback  while a goal is active
+``P/<ns>/navigate/result`` publisher               NavigationResult  once per goal
+``P/<ns>/plan``        publisher + queryable       NavigationPath  each time the robot plans
+``P/navigation``       publisher 2 Hz, on demand   FleetNavigation  every navigating robot
 ``P/odometry``         publisher 30 Hz, on demand  FleetOdometry  every robot's odometry of a tick
 ``P/scans``            publisher, on demand        FleetScans  the scans of a tick (the group due)
 ``P/daemons``          queryable                   (none)      DaemonInfo, one reply a daemon
@@ -134,6 +141,42 @@ class Keys:
 
     def alive(self, ns: str) -> str:
         return self._k(ns, "alive")
+
+    def navigate(self, ns: str) -> str:
+        """Send robot ``ns`` a goal (queryable; ``*`` for every robot's)."""
+        return self._k(ns, "navigate")
+
+    def navigate_cancel(self, ns: str) -> str:
+        return self._k(ns, "navigate", "cancel")
+
+    def navigate_state(self, ns: str) -> str:
+        return self._k(ns, "navigate", "state")
+
+    def navigate_feedback(self, ns: str) -> str:
+        return self._k(ns, "navigate", "feedback")
+
+    def navigate_result(self, ns: str) -> str:
+        return self._k(ns, "navigate", "result")
+
+    def plan(self, ns: str) -> str:
+        """The path robot ``ns`` follows, put each time it is planned."""
+        return self._k(ns, "plan")
+
+    @property
+    def fleet_navigation(self) -> str:
+        """Every navigating robot's state and goal in one message, at 2 Hz while someone listens."""
+        return self._k("navigation")
+
+    def robot_of(self, key: str, *tail: str) -> str | None:
+        """The ``<ns>`` of a concrete key ``P/<ns>/<tail...>`` (None for another shape or a
+        wildcard), e.g. ``robot_of(key, "navigate", "cancel")``."""
+        head = self.prefix + "/"
+        if not key.startswith(head) or "*" in key:
+            return None
+        rest = key[len(head) :].split("/")
+        if len(rest) != 1 + len(tail) or tuple(rest[1:]) != tail or not rest[0]:
+            return None
+        return rest[0]
 
     def namespace_of(self, key: str) -> str | None:
         """The ``<ns>`` chunk of ``P/<ns>/<topic>``, or None if ``key`` has another shape."""

@@ -29,6 +29,7 @@ RESERVED_WORDS = frozenset(
         "odometry",  # the fleet topics P/odometry and P/scans
         "scans",
         "daemons",  # P/daemons and the daemons' liveliness tokens P/daemons/<id>
+        "navigation",  # the fleet's navigation topic P/navigation
     }
 )
 

@@ -12,6 +12,7 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from protocol.control import DEFAULT_DAEMON_ID
 from protocol.errors import FleetError
@@ -19,6 +20,10 @@ from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
 from protocol.ros_domain import domain_id
 from protocol.zenoh_config import add_zenoh_args, options_from_args, zenoh_error_text
+
+if TYPE_CHECKING:
+    from simd.core.sim import Simulation
+    from simd.nav.navigator import Navigator
 
 log = logging.getLogger("simd")
 
@@ -107,6 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE",
         help="keep the fleet in FILE: written every few seconds and on shutdown, restored on start, so a restarted "
         "daemon brings its robots back (a missing FILE is created)",
+    )
+    p.add_argument(
+        "--no-nav",
+        action="store_true",
+        help="no navigation: robots go only where cmd_vel drives them (by default every robot takes goals on "
+        "P/<ns>/navigate: fleet goto NS X Y; docs/navigation.md)",
     )
     p.add_argument("--log-level", default="info", choices=("debug", "info", "warning", "error"))
     add_zenoh_args(p, server=True)
@@ -329,7 +340,8 @@ def main(argv: list[str] | None = None) -> int:
         tick = fleet_tick(session, keys)
         if tick is not None and sim.tick == 0 and len(sim.robots) == 0:
             sim.start_at(tick)  # the fleet's clock: stepped together, its daemons' ticks agree
-    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver)
+    navigator = None if args.no_nav else _navigator(sim, args)
+    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver, navigator=navigator)
     adapter: FleetAdapter | None = None
     presence: Presence | None = None
     ghost_feed = None
@@ -410,3 +422,14 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _navigator(sim: Simulation, args: argparse.Namespace) -> Navigator:
+    """The navigator for the world: a MovingAI map is planned on its own cells, in lanes."""
+    from simd.core.movingai import is_movingai
+    from simd.core.worldfile import SHIPPED_WORLDS
+    from simd.nav.navigator import NavConfig, Navigator
+
+    data, source = SHIPPED_WORLDS.read(args.world)
+    config = NavConfig(resolution=args.cell_size, lanes=True) if is_movingai(data, source) else NavConfig()
+    return Navigator(sim.world, sim.config.lidar, sim.robots, config)

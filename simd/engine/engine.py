@@ -39,15 +39,18 @@ from protocol.control import (
 )
 from protocol.errors import ErrorCode, FleetError
 from protocol.messages import Time
+from protocol.navigation import CancelRequest, NavigateRequest, NavigationRequest, NavigationStateRequest
 from simd.core.robots import RobotTable
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
+from simd.nav.navigator import Navigator
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
 from simd.engine.observe import LatestScans, observe_packed
 from simd.engine.ports import (
     Adapter,
     Deleted,
     GhostSource,
+    Navigation,
     ObservedArrays,
     OwnRobots,
     Reply,
@@ -73,7 +76,7 @@ SLICE_SECONDS = 0.02
 
 @dataclass
 class _Call:
-    request: Request
+    request: Request | NavigationRequest
     reply: Reply
 
 
@@ -97,8 +100,9 @@ class _StepJob:
     watched: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     watched_of: list[str] | None = None
 
-    def apply(self, sim: Simulation) -> None:
-        """Command this step's robots for the coming tick."""
+    def apply(self, sim: Simulation, nav: Navigator | None = None) -> None:
+        """Command this step's robots for the coming tick (those of them that navigate: only
+        with commands other than zero, which override the navigator as cmd_vel does)."""
         t = sim.robots
         if self.rows_of is not t.namespaces:
             found = [t.row_of(ns) for ns in self.names]
@@ -109,6 +113,9 @@ class _StepJob:
             all_here = len(self.rows) == len(self.names)
             v, w = (self.v, self.w) if all_here else (self.v[self.here], self.w[self.here])
             sim.command_rows(self.rows, v, w)
+            if nav is not None and nav.busy:
+                names = self.names if all_here else [n for n, h in zip(self.names, self.here, strict=True) if h]
+                nav.overridden_by_step(names, v, w, sim.time)
 
 
 class RowsMemo:
@@ -172,8 +179,11 @@ class Engine:
         paused: bool = False,
         clock: Callable[[], float] = time.monotonic,
         saver: Saver | None = None,
+        navigator: Navigator | None = None,
     ) -> None:
         self.sim = sim
+        #: drives the robots that have a goal (simd/nav); None: no navigation (``--no-nav``)
+        self.navigator = navigator
         self.rtf = rtf
         self.lockstep = lockstep
         self.paused = paused or lockstep
@@ -203,6 +213,9 @@ class Engine:
             ResumeRequest: self._resume,
             ResetRequest: self._reset,
             StepRequest: self._step,
+            NavigateRequest: self._navigate,
+            CancelRequest: self._cancel_goal,
+            NavigationStateRequest: self._navigation_state,
         }
 
     def attach(self, adapter: Adapter) -> None:
@@ -214,7 +227,7 @@ class Engine:
 
     # -- from any thread --------------------------------------------------------------------
 
-    def submit(self, request: Request, reply: Reply) -> None:
+    def submit(self, request: Request | NavigationRequest, reply: Reply) -> None:
         """Queue a request for the simulation thread, which calls ``reply`` once. Raises
         FleetError (busy) at once when the queue is full, so a flood never grows without
         bound and ``reply`` is never called for it."""
@@ -321,18 +334,30 @@ class Engine:
         """Apply the newest commands, advance one tick, hand the snapshot to every adapter
         (unless a step asked for no publishing: then no adapter hears of the tick)."""
         sim = self.sim
-        sim.command_many(self._gather_commands())
+        nav = self.navigator
+        commands = self._gather_commands()
+        if nav is not None:  # an idle teleop's zeros never stop a robot on its way
+            commands = nav.filter_commands(commands, sim.time)
+        sim.command_many(commands)
         self._pending_commands = {}
         if self.ghost_source is not None:
             ghosts = self.ghost_source.take(self._own_robots(), stepping=bool(self._steps))
             if ghosts is not None:
                 sim.set_ghosts(ghosts)
         if self._steps:  # a step's own commands hold for all of its ticks
-            self._steps[0].apply(sim)
+            self._steps[0].apply(sim, nav)
+        if nav is not None:
+            nav.step(sim.robots, sim.tick, sim.time)
+            nav.apply(sim.robots, sim.command_rows)
         snap = sim.step()
         self._scans.record(snap)
         self._last_snap = snap
         self._rtf.record(self._wall(), snap.time)
+        if nav is not None:
+            nav.observe(snap)
+            said = nav.take_events()
+            if said:
+                self._event(Navigation(said))
         if publish:
             for a in self.adapters:
                 a.on_tick(snap)
@@ -382,6 +407,9 @@ class Engine:
 
     def _delete(self, req: DeleteRequest, reply: Reply) -> Result:
         last = self.sim.delete(req.name)
+        if self.navigator is not None:
+            self.navigator.deleted(last.namespace, self.sim.time)
+            self._tell_navigation()
         self._scans.forget(last.namespace)
         self._pending_commands.pop(last.namespace, None)
         self._event(Deleted(last))
@@ -424,6 +452,9 @@ class Engine:
         self._gather_commands()  # commands sent before the reset do not outlive it
         self._pending_commands = {}
         self._scans.clear()
+        if self.navigator is not None:
+            self.navigator.reset(self.sim.time)
+            self._tell_navigation()
         self._event(WorldReset(self.sim.epoch))
         self._changed()
         self._rtf.restart(self._wall(), self.sim.time)
@@ -526,7 +557,42 @@ class Engine:
             rows = np.array([row for row in found if row is not None], dtype=np.int64)
         return observe_packed(t, self._last_snap, self._scans, names, rows, self.sim.config.lidar.samples)
 
-    def _event(self, event: Spawned | Deleted | WorldReset) -> None:
+    # -- navigation -------------------------------------------------------------------------
+
+    def _nav(self, robot: str) -> tuple[Navigator, str]:
+        """The navigator and the robot's namespace, or the error that refuses the request."""
+        if self.navigator is None:
+            raise FleetError(ErrorCode.NOT_ALLOWED, "navigation is off on this daemon (it was started with --no-nav)")
+        found = self.sim.find(robot)
+        if found is None:
+            raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {robot!r}", "robot")
+        return self.navigator, found.namespace
+
+    def _navigate(self, req: NavigateRequest, reply: Reply) -> Result:
+        nav, ns = self._nav(req.robot)
+        robot = self.sim.find(ns)
+        assert robot is not None
+        accepted = nav.goal(ns, robot.model, req, self.sim.time)
+        self._tell_navigation()  # the preempted goal's result goes before this reply
+        return accepted
+
+    def _cancel_goal(self, req: CancelRequest, reply: Reply) -> Result:
+        nav, ns = self._nav(req.robot)
+        result = nav.cancel(ns, req.goal_id, self.sim.time)
+        self._tell_navigation()
+        return result
+
+    def _navigation_state(self, req: NavigationStateRequest, reply: Reply) -> Result:
+        nav, ns = self._nav(req.robot)
+        return nav.state(ns)
+
+    def _tell_navigation(self) -> None:
+        assert self.navigator is not None
+        said = self.navigator.take_events()
+        if said:
+            self._event(Navigation(said))
+
+    def _event(self, event: Spawned | Deleted | WorldReset | Navigation) -> None:
         for a in self.adapters:
             a.on_event(event)
 

@@ -24,9 +24,11 @@ import numpy.typing as npt
 
 from protocol.control import Clock
 from protocol.errors import FleetError
+from protocol.navigation import NavigateReply, NavigationResult, NavigationState
 from simd.core.ghosts import GhostColumns
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
+from simd.nav.navigator import NavEvents
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -54,7 +56,16 @@ class WorldReset:
     epoch: int
 
 
-Event = Spawned | Deleted | WorldReset
+@dataclass(frozen=True)
+class Navigation:
+    """What the navigator said during a tick (results, paths, feedback, the fleet's summary:
+    protocol/navigation.py's messages). Handed on even by steps that do not publish: a goal's
+    result must reach the client that waits for it."""
+
+    events: NavEvents
+
+
+Event = Spawned | Deleted | WorldReset | Navigation
 
 
 @dataclass(frozen=True)
@@ -108,7 +119,7 @@ class StepResult:
 
 
 #: What a request is answered with: a core or engine value, or the error that refused it.
-Result = RobotState | RobotList | WorldGeometry | Clock | StepResult
+Result = RobotState | RobotList | WorldGeometry | Clock | StepResult | NavigateReply | NavigationResult | NavigationState
 Reply = Callable[[Result | FleetError], None]
 
 

@@ -41,8 +41,10 @@ from protocol.control import (
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
 from protocol.messages import Time
+from protocol.navigation import NavigationRequest
 from simd.adapters.fleet import requests
 from simd.adapters.fleet.commands import CommandIntake
+from simd.adapters.fleet.navigation import NavigationKeys
 from simd.adapters.fleet.presence import Members
 from simd.adapters.fleet.publisher import Publisher
 from simd.adapters.zenoh_entities import undeclare_all
@@ -50,7 +52,7 @@ from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.engine import Engine
 from simd.engine.outbox import Outbox
-from simd.engine.ports import Deleted, Event, Result, Spawned, StepResult
+from simd.engine.ports import Deleted, Event, Navigation, Result, Spawned, StepResult
 from simd.engine.ports import RobotList as EngineRobotList
 from simd.wire import convert
 
@@ -87,11 +89,12 @@ class FleetAdapter:
         # this daemon's clock alone, under its id: what its healthcheck asks in a shared fleet
         mine = [requests.Route(keys.daemon_clock(daemon_id), ClockRequest, acts=False)] if daemon_id else []
         self._queryables: list[Any] = requests.declare(session, keys, self._submit, mine)
+        self.navigation = NavigationKeys(session, keys, self._submit) if engine.navigator is not None else None
         engine.attach(self)
 
     # -- requests (zenoh threads) ---------------------------------------------------------------
 
-    def _submit(self, request: Request, pending: requests.Pending) -> None:
+    def _submit(self, request: Request | NavigationRequest, pending: requests.Pending) -> None:
         if self.members is not None:
             if not self._ours(request, pending):
                 return
@@ -121,7 +124,7 @@ class FleetAdapter:
         """The names and namespaces of this daemon's robots (a copy, for other threads)."""
         return set(self._own)
 
-    def _ours(self, request: Request, pending: requests.Pending) -> bool:
+    def _ours(self, request: Request | NavigationRequest, pending: requests.Pending) -> bool:
         """In a shared fleet, whether this daemon answers: a spawn if the name is placed here
         (and is nobody's elsewhere), a delete if the robot is here or, when it is nowhere, if
         its name would be placed here (that one daemon says not found). Others let it pass."""
@@ -138,6 +141,9 @@ class FleetAdapter:
                     return False
         elif isinstance(request, DeleteRequest) and not self._answers_delete(request.name):
             pending.skip()
+            return False
+        elif isinstance(request, NavigationRequest) and not self._answers_delete(request.robot):
+            pending.skip()  # the robot's own daemon navigates it
             return False
         return True
 
@@ -229,6 +235,10 @@ class FleetAdapter:
             self.outbox.put(partial(self.publisher.add_robot, event.robot, event.time))
         elif isinstance(event, Deleted):
             self.outbox.put(partial(self.publisher.remove_robot, event.robot.namespace))
+            if self.navigation is not None:
+                self.navigation.forget(event.robot.namespace)
+        elif isinstance(event, Navigation) and self.navigation is not None:
+            self.outbox.put(partial(self.navigation.publish, event.events))
 
     def on_clock(self, clock: Clock) -> None:
         self.outbox.put(partial(self.publisher.publish_clock, encode(clock)))
@@ -243,6 +253,8 @@ class FleetAdapter:
         if self.members is not None:
             self.members.close()
         undeclare_all(self._queryables)
+        if self.navigation is not None:
+            self.navigation.close()
         self.commands.close()
         self.outbox.close()
         self.publisher.close()

@@ -1,0 +1,158 @@
+"""Path following for every navigating robot at once: where each stands on its path, and the
+command that takes it on.
+
+The control law is a regulated pure pursuit, as Nav2's default controller for diff-drive
+robots: steer for a point ``LOOKAHEAD_M`` further along the path; turn in place first when
+that point is more than ``ROTATE_ABOVE_RAD`` off the heading (a TurtleBot3 turns on the spot,
+and a path through a one-cell aisle has right angles); slow down in tight curves and so as to
+stop, at the wheels' acceleration, before the end of what the robot may drive (the goal, the
+cells its traffic claims reach, or the nearest obstacle its lidar sees). Commands stay within
+the model's limits; the simulation's diff-drive then ramps the wheels at their acceleration.
+
+Paths are ragged (one polyline per robot); they are kept in one concatenated array so that
+projecting every robot onto its path and finding its pursuit point are a few numpy operations
+for the whole fleet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+LOOKAHEAD_M = 0.25
+#: turn in place when the pursuit point is further off the heading than this
+ROTATE_ABOVE_RAD = 0.6
+#: the deceleration commands plan with (the wheels manage 1 m/s^2; commands change at 10 Hz)
+PLAN_DECEL = 0.5
+#: the angular deceleration turns plan with (rad/s^2)
+PLAN_ANGULAR_DECEL = 4.0
+#: pure pursuit's regulation: below this turning radius the speed is scaled down
+REGULATE_RADIUS_M = 0.5
+#: how many segments ahead of the last one a robot's projection looks
+SEARCH_SEGMENTS = 4
+#: each robot's path distances are shifted by this times its row, to search all at once
+_STRIDE = 1.0e7
+
+
+@dataclass
+class PathBank:
+    """The paths of the robots being driven, concatenated: robot ``i`` (a row of the bank)
+    owns points ``offset[i] : offset[i] + count[i]``."""
+
+    points: F64
+    cum: F64  # path distance at each point (per robot, from 0)
+    offset: I64
+    count: I64
+
+    @classmethod
+    def of(cls, paths: list[F64]) -> PathBank:
+        if not paths:
+            return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
+        counts = np.array([len(p) for p in paths], dtype=np.int64)
+        offset = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.int64)
+        points = np.concatenate(paths)
+        cum = np.concatenate([_cumulative(p) for p in paths])
+        return cls(points, cum, offset, counts)
+
+    def length(self) -> F64:
+        last: F64 = self.cum[self.offset + self.count - 1]
+        return last
+
+    def project(self, x: F64, y: F64, seg: I64) -> tuple[I64, F64]:
+        """Each robot's path distance at its position: the nearest point on segments
+        ``seg .. seg + SEARCH_SEGMENTS`` (never behind ``seg``, so a path that passes the same
+        place twice is followed in order). Returns the new segment indices and distances."""
+        nseg = np.maximum(self.count - 1, 1)
+        cand = np.minimum(seg[:, None] + np.arange(SEARCH_SEGMENTS + 1)[None, :], (nseg - 1)[:, None])
+        a = self.offset[:, None] + cand
+        b = np.minimum(a + 1, (self.offset + self.count - 1)[:, None])
+        ax, ay = self.points[a, 0], self.points[a, 1]
+        dx, dy = self.points[b, 0] - ax, self.points[b, 1] - ay
+        len2 = np.maximum(dx * dx + dy * dy, 1e-12)
+        t = np.clip(((x[:, None] - ax) * dx + (y[:, None] - ay) * dy) / len2, 0.0, 1.0)
+        ex, ey = x[:, None] - (ax + t * dx), y[:, None] - (ay + t * dy)
+        best = np.argmin(ex * ex + ey * ey, axis=1)
+        rows = np.arange(len(x))
+        new_seg = cand[rows, best]
+        ia, ib = a[rows, best], b[rows, best]
+        dist = self.cum[ia] + t[rows, best] * (self.cum[ib] - self.cum[ia])
+        return new_seg.astype(np.int64), dist
+
+    def at(self, s: F64) -> tuple[F64, F64]:
+        """The point at path distance ``s`` on each robot's path (clamped to its ends)."""
+        rows = np.arange(len(s), dtype=np.float64)
+        shifted = self.cum + np.repeat(rows * _STRIDE, self.count)
+        s = np.clip(s, 0.0, self.length())
+        target = s + rows * _STRIDE
+        j = np.searchsorted(shifted, target, side="right") - 1
+        j = np.clip(j, self.offset, self.offset + self.count - 1)
+        k = np.minimum(j + 1, self.offset + self.count - 1)
+        span = self.cum[k] - self.cum[j]
+        t = np.where(span > 0, (s - self.cum[j]) / np.where(span > 0, span, 1.0), 0.0)
+        px = self.points[j, 0] + t * (self.points[k, 0] - self.points[j, 0])
+        py = self.points[j, 1] + t * (self.points[k, 1] - self.points[j, 1])
+        return px, py
+
+
+def _cumulative(points: F64) -> F64:
+    d = np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1]))
+    return np.concatenate(([0.0], np.cumsum(d)))
+
+
+def wrap(a: F64) -> F64:
+    wrapped: F64 = (a + np.pi) % (2 * np.pi) - np.pi
+    return wrapped
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Each robot's model limits, as columns."""
+
+    max_v: F64
+    max_w: F64
+
+
+def pursue(
+    x: F64,
+    y: F64,
+    yaw: F64,
+    aim_x: F64,
+    aim_y: F64,
+    room: F64,
+    limits: Limits,
+) -> tuple[F64, F64]:
+    """The (linear, angular) command of each robot steering for (aim_x, aim_y) with ``room``
+    metres it may still drive along its path (0: stop, it may still turn to face the aim)."""
+    dx, dy = aim_x - x, aim_y - y
+    dist = np.hypot(dx, dy)
+    alpha = wrap(np.arctan2(dy, dx) - yaw)
+    alpha = np.where(dist > 1e-6, alpha, 0.0)
+    turn_in_place = np.abs(alpha) > ROTATE_ABOVE_RAD
+    # speed: the top speed, regulated in tight curves, and so as to stop within the room
+    curvature = 2.0 * np.sin(alpha) / np.maximum(dist, 1e-6)
+    radius = 1.0 / np.maximum(np.abs(curvature), 1e-9)
+    v = limits.max_v * np.minimum(1.0, radius / REGULATE_RADIUS_M)
+    v = np.minimum(v, np.sqrt(2.0 * PLAN_DECEL * np.maximum(room, 0.0)))
+    v = np.where(turn_in_place | (room <= 1e-3), 0.0, v)
+    w = v * curvature
+    # a curve the wheels cannot turn at this speed: slow down to keep the curvature
+    over = np.abs(w) > limits.max_w
+    scale = np.where(over, limits.max_w / np.maximum(np.abs(w), 1e-9), 1.0)
+    v, w = v * scale, w * scale
+    spin = np.sign(alpha) * np.minimum(limits.max_w, np.sqrt(2.0 * PLAN_ANGULAR_DECEL * np.abs(alpha)))
+    w = np.where(turn_in_place, spin, w)
+    # standing still (no room) but not yet facing the aim: face it, to be ready
+    w = np.where((room <= 1e-3) & ~turn_in_place, np.where(np.abs(alpha) > 0.05, spin, 0.0), w)
+    return v, w
+
+
+def turn_to(yaw: F64, target: F64, limits: Limits) -> F64:
+    """The angular command that turns each robot in place to ``target``."""
+    err = wrap(target - yaw)
+    w: F64 = np.sign(err) * np.minimum(limits.max_w, np.sqrt(2.0 * PLAN_ANGULAR_DECEL * np.abs(err)))
+    return w
