@@ -1,0 +1,2 @@
+"""Navigation: costmaps, planning, fleet traffic and path following for the robots the daemon
+simulates; knows the core, no transport."""
