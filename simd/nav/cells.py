@@ -1,0 +1,194 @@
+"""The floor as a graph of cells: where each model can stand, how it may move, how far
+every cell is from a goal.
+
+Fleet traffic works on cells one robot wide (simd/nav/traffic.py): a robot stands in one,
+moves to a neighbour (eight of them; a diagonal step only past two free side cells, as a
+robot does not cut a corner), and no cell has two robots. A cell is one robot wide when the
+model's circle with its margins (:data:`MARGIN_M` beyond the circumscribed radius, plus
+:data:`TRACKING_M` for how far it may stray from the line between two cell centres) fits in
+it: 0.35 m for a burger. On a MovingAI map the cells are the map's own.
+
+A model can stand in a cell when its circle (radius plus margin) is clear of every wall at
+the cell's centre, and step between two neighbours when it is also clear halfway (a thin
+wall on the border between two free cells blocks the step). Clearances come from the world's
+exact geometry (costmap.clearance_field) sampled at every cell centre and every midpoint.
+
+Each goal gets a distance field: the length of the shortest way from every cell to the goal
+cell over the moves the model may make (Dijkstra). It is the robot's plan and more: when its
+next cell on the best way is taken, it knows at once how good every other neighbour is,
+which is what priority inheritance (traffic.py) needs.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import numpy.typing as npt
+
+from simd.core.models import RobotModel
+from simd.core.worldfile import WorldGeometry
+from simd.nav.costmap import Grid, clearance_field
+
+F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+B = npt.NDArray[np.bool_]
+
+#: room (m) kept between a robot's circumscribed circle and anything else
+MARGIN_M = 0.02
+#: how far (m) a robot may stray from the line between two cell centres
+TRACKING_M = 0.03
+#: the eight moves as (d_row, d_col), axis moves first
+MOVES: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (0, -1), (-1, 0), (1, 1), (1, -1), (-1, -1), (-1, 1))
+SQRT2 = math.sqrt(2.0)
+
+
+def body_radius(model: RobotModel) -> float:
+    """The radius of the circle a model holds cells with (circumscribed, plus margin)."""
+    return model.radius + MARGIN_M
+
+
+def cell_size_for(model: RobotModel) -> float:
+    """The smallest cell one robot of ``model`` fits in, rounded up to the centimetre."""
+    return math.ceil(200.0 * (body_radius(model) + TRACKING_M)) / 100.0
+
+
+@dataclass
+class CellGraph:
+    """The cells over a world's bounds (side ``size``, origin at the bounds' lower-left
+    corner, row 0 at the smallest y) and, per model, where it stands and how it moves."""
+
+    world: WorldGeometry
+    size: float
+    grid: Grid = field(init=False)
+    _half: F32 = field(init=False)  # clearance at every centre and midpoint (a grid of size/2)
+    _standable: dict[str, B] = field(default_factory=dict, init=False)
+    _moves: dict[str, npt.NDArray[np.bool_]] = field(default_factory=dict, init=False)
+
+    def __post_init__(self) -> None:
+        x_min, _, y_min, _ = self.world.bounds
+        self.grid = Grid.covering(self.world, self.size)
+        g = self.grid
+        half = Grid(x_min - self.size / 4, y_min - self.size / 4, self.size / 2, 2 * g.width + 1, 2 * g.height + 1)
+        reach = max(self.size, 1.0)
+        self._half = clearance_field(self.world, half, reach)
+
+    @property
+    def width(self) -> int:
+        return self.grid.width
+
+    @property
+    def height(self) -> int:
+        return self.grid.height
+
+    @property
+    def count(self) -> int:
+        return self.grid.width * self.grid.height
+
+    def index(self, x: float, y: float) -> int | None:
+        cell = self.grid.cell(x, y)
+        return None if cell is None else cell[0] * self.grid.width + cell[1]
+
+    def centre(self, index: int) -> tuple[float, float]:
+        row, col = divmod(index, self.grid.width)
+        return self.grid.centre(row, col)
+
+    def centres(self, indices: I64) -> F64:
+        rows, cols = np.divmod(indices, self.grid.width)
+        xy = np.empty((len(indices), 2))
+        xy[:, 0] = self.grid.x0 + (cols + 0.5) * self.size
+        xy[:, 1] = self.grid.y0 + (rows + 0.5) * self.size
+        return xy
+
+    def fits(self, model: RobotModel) -> bool:
+        """Whether one robot of ``model`` fits in a cell."""
+        return cell_size_for(model) <= self.size + 1e-9
+
+    def standable(self, model: RobotModel) -> B:
+        """Per cell (flat): whether the model can stand at its centre."""
+        s = self._standable.get(model.name)
+        if s is None:
+            need = body_radius(model)
+            s = (self._half[1::2, 1::2] >= need).ravel()
+            s.setflags(write=False)
+            self._standable[model.name] = s
+        return s
+
+    def moves(self, model: RobotModel) -> npt.NDArray[np.bool_]:
+        """(cells, 8): whether the model may step from each cell by each of :data:`MOVES`."""
+        m = self._moves.get(model.name)
+        if m is None:
+            m = self._allowed_moves(model)
+            m.setflags(write=False)
+            self._moves[model.name] = m
+        return m
+
+    def _allowed_moves(self, model: RobotModel) -> npt.NDArray[np.bool_]:
+        h, w = self.height, self.width
+        need = body_radius(model)
+        stand = self.standable(model).reshape(h, w)
+        padded = np.zeros((h + 2, w + 2), dtype=bool)
+        padded[1:-1, 1:-1] = stand
+        half = self._half
+        out = np.zeros((h, w, len(MOVES)), dtype=bool)
+        for k, (dr, dc) in enumerate(MOVES):
+            target = padded[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+            ok = stand & target
+            # the step's midpoint on the half grid: centre (2r+1, 2c+1) plus (dr, dc)
+            mid = np.full((h, w), -1.0, dtype=np.float32)
+            r0, c0 = 1 + dr, 1 + dc
+            mid[:, :] = half[r0 : r0 + 2 * h : 2, c0 : c0 + 2 * w : 2]
+            ok &= mid >= need
+            if dr and dc:  # a diagonal passes both side cells: no corner cutting
+                ok &= padded[1 + dr : 1 + dr + h, 1 : 1 + w] & padded[1 : 1 + h, 1 + dc : 1 + dc + w]
+            out[:, :, k] = ok
+        return out.reshape(h * w, len(MOVES))
+
+    def neighbour(self, index: int, k: int) -> int:
+        """The cell one move ``k`` away (the caller knows it is on the grid)."""
+        dr, dc = MOVES[k]
+        return index + dr * self.grid.width + dc
+
+    def distances(self, model: RobotModel, goal: int, blocked: I64 | None = None) -> F32:
+        """Metres from every cell to ``goal`` over the model's moves (inf where there is no
+        way), with the cells ``blocked`` (flat) treated as walls."""
+        moves = self.moves(model)
+        if blocked is not None and len(blocked):
+            moves = moves.copy()
+            moves[blocked, :] = False
+            for k, (dr, dc) in enumerate(MOVES):  # nor may anybody step into them
+                src = blocked - (dr * self.width + dc)
+                ok = (src >= 0) & (src < self.count)
+                moves[src[ok], k] = False
+        return dijkstra(moves, self.width, goal, self.size)
+
+
+def dijkstra(moves: npt.NDArray[np.bool_], width: int, goal: int, size: float) -> F32:
+    """Distances to ``goal`` on the graph ``moves`` (cells, 8) of a grid ``width`` wide: the
+    reference implementation (moves are symmetric, so distances *to* the goal are distances
+    *from* it)."""
+    n = len(moves)
+    dist = np.full(n, np.inf, dtype=np.float64)
+    if not 0 <= goal < n:
+        return dist.astype(np.float32)
+    dist[goal] = 0.0
+    offsets = [dr * width + dc for dr, dc in MOVES]
+    steps = [size if k < 4 else size * SQRT2 for k in range(len(MOVES))]
+    heap = [(0.0, goal)]
+    allowed = moves.tolist()
+    while heap:
+        d, c = heapq.heappop(heap)
+        if d > dist[c]:
+            continue
+        row = allowed[c]
+        for k in range(8):
+            if row[k]:
+                nb = c + offsets[k]
+                nd = d + steps[k]
+                if nd < dist[nb]:
+                    dist[nb] = nd
+                    heapq.heappush(heap, (nd, nb))
+    return dist.astype(np.float32)
