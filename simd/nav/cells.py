@@ -43,7 +43,6 @@ MARGIN_M = 0.02
 TRACKING_M = 0.03
 #: the eight moves as (d_row, d_col), axis moves first
 MOVES: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (0, -1), (-1, 0), (1, 1), (1, -1), (-1, -1), (-1, 1))
-SQRT2 = math.sqrt(2.0)
 
 
 def body_radius(model: RobotModel) -> float:
@@ -153,8 +152,11 @@ class CellGraph:
         return index + dr * self.grid.width + dc
 
     def distances(self, model: RobotModel, goal: int, blocked: I64 | None = None) -> F32:
-        """Metres from every cell to ``goal`` over the model's moves (inf where there is no
-        way), with the cells ``blocked`` (flat) treated as walls."""
+        """Metres from every cell to ``goal`` (inf where there is no way), with the cells
+        ``blocked`` (flat) treated as walls. Measured over the eight moves and the eight
+        knight's moves (each allowed where both ways of making it from the eight are), so the
+        field is within 3 % of straight-line distance in the open instead of 8 %: a robot that
+        walks down it cell by cell takes a near-straight line, not an L."""
         moves = self.moves(model)
         if blocked is not None and len(blocked):
             moves = moves.copy()
@@ -163,20 +165,59 @@ class CellGraph:
                 src = blocked - (dr * self.width + dc)
                 ok = (src >= 0) & (src < self.count)
                 moves[src[ok], k] = False
-        return dijkstra(moves, self.width, goal, self.size)
+        return dijkstra(with_knights(moves, self.width), self.width, goal, self.size)
+
+
+#: the knight's moves of the distance fields, each as its two ways through the eight:
+#: (d_row, d_col), (first move, then move), (other first move, then move) as MOVES indices
+KNIGHTS: tuple[tuple[tuple[int, int], tuple[int, int], tuple[int, int]], ...] = tuple(
+    ((dr, dc), (MOVES.index(a), MOVES.index((dr - a[0], dc - a[1]))), (MOVES.index(b), MOVES.index((dr - b[0], dc - b[1]))))
+    for dr, dc, a, b in (
+        (1, 2, (0, 1), (1, 1)),
+        (2, 1, (1, 0), (1, 1)),
+        (2, -1, (1, 0), (1, -1)),
+        (1, -2, (0, -1), (1, -1)),
+        (-1, -2, (0, -1), (-1, -1)),
+        (-2, -1, (-1, 0), (-1, -1)),
+        (-2, 1, (-1, 0), (-1, 1)),
+        (-1, 2, (0, 1), (-1, 1)),
+    )
+)
+ALL_MOVES: tuple[tuple[int, int], ...] = MOVES + tuple(k[0] for k in KNIGHTS)
+
+
+def with_knights(moves: npt.NDArray[np.bool_], width: int) -> npt.NDArray[np.bool_]:
+    """(cells, 16): the eight moves, then the knight's moves allowed where both of their ways
+    through the eight are (so a knight's move never cuts a corner or jumps a wall)."""
+    n = len(moves)
+    out = np.zeros((n, len(ALL_MOVES)), dtype=bool)
+    out[:, : len(MOVES)] = moves
+    idx = np.arange(n)
+    for j, (_, (a1, a2), (b1, b2)) in enumerate(KNIGHTS):
+        ok = np.ones(n, dtype=bool)
+        for first, then in ((a1, a2), (b1, b2)):
+            dr, dc = MOVES[first]
+            mid = idx + dr * width + dc
+            inside = (mid >= 0) & (mid < n)
+            step = np.zeros(n, dtype=bool)
+            step[inside] = moves[inside, first] & moves[mid[inside], then]
+            ok &= step
+        out[:, len(MOVES) + j] = ok
+    return out
 
 
 def dijkstra(moves: npt.NDArray[np.bool_], width: int, goal: int, size: float) -> F32:
-    """Distances to ``goal`` on the graph ``moves`` (cells, 8) of a grid ``width`` wide: the
-    reference implementation (moves are symmetric, so distances *to* the goal are distances
-    *from* it)."""
+    """Distances to ``goal`` on the graph ``moves`` (cells, 8 or 16: :data:`ALL_MOVES`) of a
+    grid ``width`` wide: the reference implementation (moves are symmetric, so distances
+    *to* the goal are distances *from* it)."""
     n = len(moves)
     dist = np.full(n, np.inf, dtype=np.float64)
     if not 0 <= goal < n:
         return dist.astype(np.float32)
     dist[goal] = 0.0
-    offsets = [dr * width + dc for dr, dc in MOVES]
-    steps = [size if k < 4 else size * SQRT2 for k in range(len(MOVES))]
+    kinds = moves.shape[1]
+    offsets = [dr * width + dc for dr, dc in ALL_MOVES[:kinds]]
+    steps = [size * math.hypot(dr, dc) for dr, dc in ALL_MOVES[:kinds]]
     heap = [(0.0, goal)]
     allowed = moves.tolist()
     while heap:
@@ -184,7 +225,7 @@ def dijkstra(moves: npt.NDArray[np.bool_], width: int, goal: int, size: float) -
         if d > dist[c]:
             continue
         row = allowed[c]
-        for k in range(8):
+        for k in range(kinds):
             if row[k]:
                 nb = c + offsets[k]
                 nd = d + steps[k]

@@ -160,7 +160,9 @@ class Costmap:
         from simd.core.models import MODELS
 
         widest = max(m.radius for m in MODELS.values())
-        self.clearance = clearance_field(self.world, self.grid, widest + self.margin + INFLATION_M + self.grid.resolution)
+        self.clearance = clearance_field(
+            self.world, self.grid, widest + self.margin + INFLATION_M + self.grid.resolution
+        )
 
     def radius(self, model: RobotModel) -> float:
         """The clearance a cell needs for ``model`` to stand in it."""

@@ -9,9 +9,9 @@ stop, at the wheels' acceleration, before the end of what the robot may drive (t
 cells its traffic claims reach, or the nearest obstacle its lidar sees). Commands stay within
 the model's limits; the simulation's diff-drive then ramps the wheels at their acceleration.
 
-Paths are ragged (one polyline per robot); they are kept in one concatenated array so that
-projecting every robot onto its path and finding its pursuit point are a few numpy operations
-for the whole fleet.
+Each robot follows a short polyline: from where it stands through the centres of the cells
+it holds ahead (simd/nav/traffic.py), so every robot's pursuit point is found for the whole
+fleet at once with a few numpy operations.
 """
 
 from __future__ import annotations
@@ -22,9 +22,8 @@ import numpy as np
 import numpy.typing as npt
 
 F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
-LOOKAHEAD_M = 0.25
+LOOKAHEAD_M = 0.2
 #: turn in place when the pursuit point is further off the heading than this
 ROTATE_ABOVE_RAD = 0.6
 #: the deceleration commands plan with (the wheels manage 1 m/s^2; commands change at 10 Hz)
@@ -32,76 +31,28 @@ PLAN_DECEL = 0.5
 #: the angular deceleration turns plan with (rad/s^2)
 PLAN_ANGULAR_DECEL = 4.0
 #: pure pursuit's regulation: below this turning radius the speed is scaled down
-REGULATE_RADIUS_M = 0.5
-#: how many segments ahead of the last one a robot's projection looks
-SEARCH_SEGMENTS = 4
-#: each robot's path distances are shifted by this times its row, to search all at once
-_STRIDE = 1.0e7
+REGULATE_RADIUS_M = 0.25
 
 
-@dataclass
-class PathBank:
-    """The paths of the robots being driven, concatenated: robot ``i`` (a row of the bank)
-    owns points ``offset[i] : offset[i] + count[i]``."""
-
-    points: F64
-    cum: F64  # path distance at each point (per robot, from 0)
-    offset: I64
-    count: I64
-
-    @classmethod
-    def of(cls, paths: list[F64]) -> PathBank:
-        if not paths:
-            return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
-        counts = np.array([len(p) for p in paths], dtype=np.int64)
-        offset = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.int64)
-        points = np.concatenate(paths)
-        cum = np.concatenate([_cumulative(p) for p in paths])
-        return cls(points, cum, offset, counts)
-
-    def length(self) -> F64:
-        last: F64 = self.cum[self.offset + self.count - 1]
-        return last
-
-    def project(self, x: F64, y: F64, seg: I64) -> tuple[I64, F64]:
-        """Each robot's path distance at its position: the nearest point on segments
-        ``seg .. seg + SEARCH_SEGMENTS`` (never behind ``seg``, so a path that passes the same
-        place twice is followed in order). Returns the new segment indices and distances."""
-        nseg = np.maximum(self.count - 1, 1)
-        cand = np.minimum(seg[:, None] + np.arange(SEARCH_SEGMENTS + 1)[None, :], (nseg - 1)[:, None])
-        a = self.offset[:, None] + cand
-        b = np.minimum(a + 1, (self.offset + self.count - 1)[:, None])
-        ax, ay = self.points[a, 0], self.points[a, 1]
-        dx, dy = self.points[b, 0] - ax, self.points[b, 1] - ay
-        len2 = np.maximum(dx * dx + dy * dy, 1e-12)
-        t = np.clip(((x[:, None] - ax) * dx + (y[:, None] - ay) * dy) / len2, 0.0, 1.0)
-        ex, ey = x[:, None] - (ax + t * dx), y[:, None] - (ay + t * dy)
-        best = np.argmin(ex * ex + ey * ey, axis=1)
-        rows = np.arange(len(x))
-        new_seg = cand[rows, best]
-        ia, ib = a[rows, best], b[rows, best]
-        dist = self.cum[ia] + t[rows, best] * (self.cum[ib] - self.cum[ia])
-        return new_seg.astype(np.int64), dist
-
-    def at(self, s: F64) -> tuple[F64, F64]:
-        """The point at path distance ``s`` on each robot's path (clamped to its ends)."""
-        rows = np.arange(len(s), dtype=np.float64)
-        shifted = self.cum + np.repeat(rows * _STRIDE, self.count)
-        s = np.clip(s, 0.0, self.length())
-        target = s + rows * _STRIDE
-        j = np.searchsorted(shifted, target, side="right") - 1
-        j = np.clip(j, self.offset, self.offset + self.count - 1)
-        k = np.minimum(j + 1, self.offset + self.count - 1)
-        span = self.cum[k] - self.cum[j]
-        t = np.where(span > 0, (s - self.cum[j]) / np.where(span > 0, span, 1.0), 0.0)
-        px = self.points[j, 0] + t * (self.points[k, 0] - self.points[j, 0])
-        py = self.points[j, 1] + t * (self.points[k, 1] - self.points[j, 1])
-        return px, py
-
-
-def _cumulative(points: F64) -> F64:
-    d = np.hypot(np.diff(points[:, 0]), np.diff(points[:, 1]))
-    return np.concatenate(([0.0], np.cumsum(d)))
+def along(px: F64, py: F64, lookahead: float) -> tuple[F64, F64, F64]:
+    """For short polylines, one per row of ``px``/``py`` (n, k; the robot's position first,
+    rows padded by repeating their last point): the point ``lookahead`` along each (or its
+    end), and each one's length (the room to drive)."""
+    dx, dy = np.diff(px, axis=1), np.diff(py, axis=1)
+    seg = np.hypot(dx, dy)
+    cum = np.concatenate([np.zeros((len(px), 1)), np.cumsum(seg, axis=1)], axis=1)
+    room = cum[:, -1]
+    s = np.minimum(lookahead, room)
+    # the segment holding distance s of each row
+    j = np.clip((cum[:, 1:] < s[:, None]).sum(axis=1), 0, seg.shape[1] - 1) if seg.shape[1] else np.zeros(len(px), int)
+    rows = np.arange(len(px))
+    if seg.shape[1] == 0:
+        return px[:, 0], py[:, 0], room
+    length = seg[rows, j]
+    t = np.where(length > 0, (s - cum[rows, j]) / np.where(length > 0, length, 1.0), 0.0)
+    ax = px[rows, j] + t * dx[rows, j]
+    ay = py[rows, j] + t * dy[rows, j]
+    return ax, ay, room
 
 
 def wrap(a: F64) -> F64:

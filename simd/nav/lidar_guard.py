@@ -41,29 +41,17 @@ class LidarGuard:
         return offset[:, :1] + r * self.cos, offset[:, 1:2] + r * self.sin
 
     @staticmethod
-    def room_ahead(px: F64, py: F64, half_width: F64, front: F64, ignore: npt.NDArray[np.bool_] | None = None) -> F64:
+    def room_ahead(
+        px: F64, py: F64, half_width: F64, front: F64, ignore: npt.NDArray[np.bool_] | None = None
+    ) -> tuple[F64, npt.NDArray[np.bool_]]:
         """For each scan row of beam ends (``points``): metres between the robot's front edge
-        and the nearest hit in its corridor (``LOOK_AHEAD_M`` when there is none); hits where
-        ``ignore`` is true do not count (robots the traffic already keeps apart)."""
+        and the nearest hit in its corridor (``LOOK_AHEAD_M`` when there is none), and which
+        beams hit there; hits where ``ignore`` is true do not count (what the map and the
+        traffic already know)."""
         inside = (np.abs(py) <= (half_width + SIDE_MARGIN_M)[:, None]) & (px > front[:, None] - 0.02)
+        inside &= px < front[:, None] + LOOK_AHEAD_M
         if ignore is not None:
             inside &= ~ignore
         ahead = np.where(inside, px - front[:, None], LOOK_AHEAD_M)
         room: F64 = np.minimum(ahead.min(axis=1), LOOK_AHEAD_M)
-        return room
-
-    def hits_ahead(self, ranges: F32, offset: tuple[float, float], half_width: float, front: float) -> F64:
-        """The hits of one scan inside its robot's corridor within LOOK_AHEAD_M, as (k, 2)
-        points in the robot's frame (what a blocked robot marks on its map before planning
-        around them)."""
-        r = np.asarray(ranges, dtype=np.float64)
-        r = np.where(np.isfinite(r), r, 1e3)
-        px = offset[0] + r * self.cos[0]
-        py = offset[1] + r * self.sin[0]
-        inside = (
-            (np.abs(py) <= half_width + SIDE_MARGIN_M)
-            & (px > front - 0.02)
-            & (px < front + LOOK_AHEAD_M)
-        )
-        hits: F64 = np.stack([px[inside], py[inside]], axis=1)
-        return hits
+        return room, inside

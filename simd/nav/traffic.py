@@ -1,23 +1,24 @@
-"""Fleet traffic: the floor cut into cells that robots hold one at a time.
+"""Fleet traffic: robots on a graph of cells one robot wide, and who moves where next.
 
-Why reservations, rather than reciprocal avoidance alone: a warehouse's aisles are one robot
-wide, and velocity obstacles (ORCA and kin) neither promise that two robots never touch when
-they meet there, nor get them past each other. Here every robot holds the cells under its
-circle (its circumscribed radius plus a margin, as a square) and, before it drives on, the cells
-its circle will sweep along its path a little way ahead. A cell has one holder at most, so two
-robots' circles never overlap while each stays within its cells; a robot whose next cell is
-held stops short of it and *waits for* the holder. Who waits for whom forms a graph whose
-cycles are deadlocks (two robots meeting head on in a corridor, four around a block); the
-navigator breaks them (simd/nav/navigator.py): the robot of lower priority plans around or
-makes way.
+Why cells and priorities, rather than reciprocal avoidance: a warehouse's aisles are one robot
+wide, and velocity obstacles (ORCA and kin) neither promise that two robots never touch nor get
+them past each other there. Here a cell has one holder at most. A robot holds the cells under
+its circle and the one or two cells it has committed to next, and it drives only into cells
+it holds, so no two robots' circles ever overlap.
 
-Every robot in the world holds the cells under it, navigating or not (a robot driven by
-teleop, or standing still, is an obstacle the others wait for or plan around).
+Who goes where next is decided cell by cell, with priority inheritance (PIBT, Okumura et al.,
+AIJ 2022, the core of the League of Robot Runners' winning planners), run asynchronously as
+robots reach their cells: a robot takes the free neighbour nearest its goal (by its goal's
+distance field, simd/nav/cells.py); when a robot of lower priority stands in that cell, it is
+*pushed*: it must move away first (it decides at once, with the pusher's priority, and may
+push others), and the pusher follows it in. The robot whose goal is oldest always gets on, so
+two robots that meet head on in a corridor one robot wide both arrive: the younger backs out
+until it can step aside. A robot that stands still with no goal (or is driven by somebody
+else's cmd_vel) is never pushed: it is an obstacle the others go around.
 
-The claims along a path are worked out once per path (:func:`path_claims`): the ordered cells
-its circle needs, with the path distance from which each is needed and up to which it is
-kept. A robot then claims the next ones as it goes and lets go of those behind it, so each
-control step costs a few dictionary operations per robot.
+A cell being left by one robot may be promised to the next (``pending``), so a queue of
+robots moves up without gaps; the promised robot takes the cell when the other's circle has
+left it.
 """
 
 from __future__ import annotations
@@ -28,212 +29,321 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from simd.core.models import RobotModel
+from simd.nav.cells import MOVES, CellGraph, body_radius
+
+F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
 
-#: distance between the path points whose circles are claimed (also at most a fifth of a cell)
-SAMPLE_M = 0.05
 FREE = -1
-
-
-@dataclass(frozen=True)
-class Claims:
-    """The cells a robot's circle sweeps along one path, sample by sample: at path distance
-    ``at[j]`` it needs the cells ``cells[first[j]:first[j + 1]]`` that no earlier sample
-    needed; ``until[cells index]`` is the last path distance that needs that cell. A sample's
-    cells are taken all at once or not at all, so a waiting robot never holds half of a step
-    it cannot take (which would block others for nothing)."""
-
-    cells: I64
-    first: I64  # len(at) + 1 offsets into cells
-    at: F64
-    until: F64  # one per entry of cells
-    length: float
-    step: float
+#: a robot commits to at most this many cells ahead of the one it stands in
+AHEAD = 2
+#: pushes chain at most this deep (each push is one robot made to move)
+MAX_PUSH_DEPTH = 8
+#: a robot that stepped aside keeps out of the cell it left this long (s of sim time)
+GIVE_WAY_S = 5.0
 
 
 @dataclass(eq=False)
-class Hold:
-    """One robot's standing in the traffic: the claims of its path, how far it has claimed,
-    and every cell it holds (-> the path distance after which it may go; -inf for a cell held
-    only because the robot stands on it)."""
+class Mover:
+    """One robot in the traffic."""
 
     slot: int
-    radius: float  # the half-side of the square it holds about itself
-    claims: Claims | None = None
-    claimed: int = 0  # claims.cells[:claimed] have been taken (some since let go)
-    held: dict[int, float] = field(default_factory=dict)
-    footprint: tuple[int, ...] = ()
-    #: the slot of the robot holding the next cell it needs, or FREE
-    blocked_by: int = FREE
-    #: a cell under the robot is held by this other robot (they stand too close): FREE if not
+    model: RobotModel
+    radius: float
+    cell: int = FREE  # the cell its centre is in (or last reached)
+    route: list[int] = field(default_factory=list)  # cells committed to, next first
+    held: set[int] = field(default_factory=set)
+    box: tuple[int, ...] = ()
+    #: the goal's distance field (None: no goal, the robot is an obstacle, never pushed)
+    dist: F32 | None = None
+    goal_cell: int = FREE
+    goal_xy: tuple[float, float] = (0.0, 0.0)
+    priority: tuple[float, int] = (math.inf, 0)  # smaller goes first
+    #: the robot holding the cell it would take next (it waits for it), else FREE
+    waiting_for: int = FREE
+    #: a robot the traffic stepped into its way; FREE if none
     crowded_by: int = FREE
+    #: a cell it stepped out of to let another robot through, and until when it keeps out
+    gave_way: tuple[int, float] | None = None
+
+    @property
+    def pushable(self) -> bool:
+        return self.dist is not None and not self.route
 
 
 class Traffic:
-    """The cells of the floor and who holds each (the ``owner`` of a cell is a robot's slot)."""
+    """The cells of one world and the robots on them (see the module docstring)."""
 
-    def __init__(self, bounds: tuple[float, float, float, float], cell: float) -> None:
-        if not (math.isfinite(cell) and cell > 0):
-            raise ValueError(f"traffic cell must be > 0, got {cell}")
-        x_min, x_max, y_min, y_max = bounds
-        self.x0, self.y0, self.cell = x_min, y_min, cell
-        self.width = max(1, math.ceil((x_max - x_min) / cell - 1e-9))
-        self.height = max(1, math.ceil((y_max - y_min) / cell - 1e-9))
-        self.owner = np.full(self.width * self.height, FREE, dtype=np.int64)
+    def __init__(self, graph: CellGraph, ahead: int = AHEAD) -> None:
+        self.graph = graph
+        self.ahead = ahead  # cells a robot commits to ahead of its own
+        self.owner = np.full(graph.count, FREE, dtype=np.int64)
+        self.pending = np.full(graph.count, FREE, dtype=np.int64)
+        self.movers: dict[int, Mover] = {}
+        self._round: set[int] = set()  # the robots that decided in this control step
 
-    # -- geometry -------------------------------------------------------------------------------
+    # -- robots arriving and leaving --------------------------------------------------------------
+
+    def add(self, slot: int, model: RobotModel) -> Mover:
+        m = Mover(slot, model, body_radius(model))
+        self.movers[slot] = m
+        return m
+
+    def remove(self, m: Mover) -> None:
+        for c in list(m.held):
+            self._let_go(m, c)
+        for c in np.flatnonzero(self.pending == m.slot).tolist():
+            self.pending[c] = FREE
+        m.route.clear()
+        self.movers.pop(m.slot, None)
+
+    def set_goal(
+        self, m: Mover, dist: F32 | None, goal_cell: int, goal_xy: tuple[float, float], priority: float
+    ) -> None:
+        """A new goal (its distance field), or none: the robot stops where it is headed."""
+        m.dist, m.goal_cell, m.goal_xy = dist, goal_cell, goal_xy
+        m.priority = (priority, m.slot)
+        self._drop_route(m)
+
+    # -- where robots stand ---------------------------------------------------------------------
 
     def box(self, x: float, y: float, r: float) -> tuple[int, ...]:
-        """The cells (flat indices) that the square of half-side ``r`` about (x, y) overlaps,
-        clipped to the floor (a robot outside the world's bounds holds nothing there)."""
-        c0 = max(0, math.floor((x - r - self.x0) / self.cell))
-        c1 = min(self.width - 1, math.floor((x + r - self.x0) / self.cell))
-        r0 = max(0, math.floor((y - r - self.y0) / self.cell))
-        r1 = min(self.height - 1, math.floor((y + r - self.y0) / self.cell))
-        return tuple(row * self.width + col for row in range(r0, r1 + 1) for col in range(c0, c1 + 1))
+        """The cells (flat) that the square of half-side ``r`` about (x, y) overlaps."""
+        g = self.graph.grid
+        c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
+        c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
+        r0 = max(0, math.floor((y - r - g.y0) / g.resolution))
+        r1 = min(g.height - 1, math.floor((y + r - g.y0) / g.resolution))
+        return tuple(row * g.width + col for row in range(r0, r1 + 1) for col in range(c0, c1 + 1))
 
-    def centre(self, index: int) -> tuple[float, float]:
-        row, col = divmod(index, self.width)
-        return self.x0 + (col + 0.5) * self.cell, self.y0 + (row + 0.5) * self.cell
-
-    def path_claims(self, points: F64, radius: float, grow: float = 0.0) -> Claims:
-        """The claims of a polyline ``points`` (n, 2) for a circle of ``radius`` at its start,
-        growing by ``grow`` over the first ``grow`` metres (how far the robot may stray from its
-        path once it drives: standing at the start, it strays nowhere, and a robot right
-        beside it does not block its first step)."""
-        seg = np.diff(points, axis=0)
-        cum = np.concatenate(([0.0], np.cumsum(np.hypot(seg[:, 0], seg[:, 1]))))
-        length = float(cum[-1])
-        step = min(SAMPLE_M, self.cell / 5)
-        s = np.linspace(0.0, length, max(2, math.ceil(length / step) + 1))
-        xs = np.interp(s, cum, points[:, 0])
-        ys = np.interp(s, cum, points[:, 1])
-        r = radius + np.minimum(s, grow)
-        c0 = np.floor((xs - r - self.x0) / self.cell).astype(np.int64)
-        c1 = np.floor((xs + r - self.x0) / self.cell).astype(np.int64)
-        r0 = np.floor((ys - r - self.y0) / self.cell).astype(np.int64)
-        r1 = np.floor((ys + r - self.y0) / self.cell).astype(np.int64)
-        span = int(max((c1 - c0).max(), (r1 - r0).max())) + 1
-        sample_of, cell_of = [], []
-        for dr in range(span):
-            for dc in range(span):
-                row, col = r0 + dr, c0 + dc
-                ok = (row <= r1) & (col <= c1) & (row >= 0) & (col >= 0) & (row < self.height) & (col < self.width)
-                sample_of.append(np.flatnonzero(ok))
-                cell_of.append((row * self.width + col)[ok])
-        samples = np.concatenate(sample_of)
-        cells = np.concatenate(cell_of)
-        order = np.lexsort((cells, samples))
-        samples, cells = samples[order], cells[order]
-        uniq, first_seen = np.unique(cells, return_index=True)
-        _, last_rev = np.unique(cells[::-1], return_index=True)
-        last_seen = len(cells) - 1 - last_rev
-        new = np.zeros(len(cells), dtype=bool)
-        new[first_seen] = True
-        until_of = dict(zip(uniq.tolist(), s[samples[last_seen]].tolist(), strict=True))
-        new_cells = cells[new]
-        first = np.searchsorted(samples[new], np.arange(len(s) + 1)).astype(np.int64)
-        until = np.array([until_of[c] for c in new_cells.tolist()], dtype=np.float64)
-        return Claims(new_cells, first, s, until, length, float(s[1] - s[0]))
-
-    # -- holding --------------------------------------------------------------------------------
-
-    def stand(self, hold: Hold, x: float, y: float) -> None:
-        """Hold the cells under the robot at (x, y) and let go of those it left behind that its
-        path no longer needs (``progress`` is not known here: see :meth:`advance`)."""
-        fp = self.box(x, y, hold.radius)
+    def stand(self, m: Mover, x: float, y: float) -> None:
+        """The robot is at (x, y): it holds the cells under it (those free), reaches the next
+        cell of its route when it is in it, and lets go of what it no longer needs."""
+        g = self.graph
+        here = g.index(x, y)
+        if here is not None:
+            if m.route and here == m.route[0]:
+                m.cell = m.route.pop(0)
+            elif m.cell == FREE or (here != m.cell and here not in m.route):
+                m.cell = here  # pushed off its cells, or placed: where it is now
+        box = self.box(x, y, m.radius)
         owner = self.owner
-        hold.crowded_by = FREE
-        for c in fp:
+        m.crowded_by = FREE
+        for c in box:
             o = owner[c]
-            if o == FREE:
-                owner[c] = hold.slot
-                hold.held.setdefault(c, -math.inf)
-            elif o != hold.slot:
-                hold.crowded_by = int(o)
-        if fp != hold.footprint:
-            for c in hold.footprint:
-                if c not in fp and hold.held.get(c, 0.0) == -math.inf:
-                    self._let_go(hold, c)
-            hold.footprint = fp
+            if o == FREE and self.pending[c] in (FREE, m.slot):
+                owner[c] = m.slot
+                m.held.add(c)
+                if self.pending[c] == m.slot:
+                    self.pending[c] = FREE
+            elif o != m.slot and o != FREE:
+                m.crowded_by = int(o)
+        m.box = box
+        self._let_go_unneeded(m)
 
-    def follow(self, hold: Hold, claims: Claims | None) -> None:
-        """A new path (or none): cells claimed for the old one and not under the robot are let go."""
-        for c in [c for c, until in hold.held.items() if until != -math.inf and c not in hold.footprint]:
-            self._let_go(hold, c)
-        for c in hold.footprint:
-            if c in hold.held:
-                hold.held[c] = -math.inf
-        hold.claims, hold.claimed, hold.blocked_by = claims, 0, FREE
+    def needed(self, m: Mover) -> set[int]:
+        """Cells the robot needs now: under it, on its route, and beside its diagonal steps."""
+        need = set(m.box)
+        prev = m.cell
+        for c in m.route:
+            need.add(c)
+            if prev != FREE:
+                need.update(self._sides(prev, c))
+            prev = c
+        return need
 
-    def advance(self, hold: Hold, progress: float, ahead: float) -> float:
-        """At path distance ``progress``: take the samples needed up to ``progress + ahead``,
-        in order, each whole, stopping at the first of which another robot holds a cell; let go
-        of the cells passed. Returns the path distance the robot may drive to (its frontier)."""
-        claims = hold.claims
-        if claims is None:
-            return progress
-        owner, slot, held = self.owner, hold.slot, hold.held
-        cells, first, at, until = claims.cells, claims.first, claims.at, claims.until
-        j, n = hold.claimed, len(at)
-        hold.blocked_by = FREE
-        reach = progress + ahead
-        while j < n and at[j] <= reach:
-            a, b = int(first[j]), int(first[j + 1])
-            blocker = FREE
-            for k in range(a, b):
-                o = owner[cells[k]]
-                if o != FREE and o != slot:
-                    blocker = int(o)
-                    break
-            if blocker != FREE:
-                hold.blocked_by = blocker
+    def _let_go_unneeded(self, m: Mover) -> None:
+        need = self.needed(m)
+        for c in [c for c in m.held if c not in need]:
+            self._let_go(m, c)
+
+    def _let_go(self, m: Mover, c: int) -> None:
+        m.held.discard(c)
+        if self.owner[c] != m.slot:
+            return
+        self.owner[c] = FREE
+        heir = int(self.pending[c])
+        if heir != FREE:  # promised to the robot following: it has it now
+            self.pending[c] = FREE
+            follower = self.movers.get(heir)
+            if follower is not None and c in follower.route:
+                self.owner[c] = heir
+                follower.held.add(c)
+
+    def _drop_route(self, m: Mover) -> None:
+        for c in np.flatnonzero(self.pending == m.slot).tolist():
+            self.pending[c] = FREE
+        m.route.clear()
+        m.waiting_for = FREE
+        self._let_go_unneeded(m)
+
+    def _sides(self, a: int, b: int) -> tuple[int, ...]:
+        """The two side cells of a diagonal step from a to b (none for an axis step)."""
+        w = self.graph.width
+        ra, ca = divmod(a, w)
+        rb, cb = divmod(b, w)
+        if ra != rb and ca != cb:
+            return (ra * w + cb, rb * w + ca)
+        return ()
+
+    # -- deciding --------------------------------------------------------------------------------
+
+    def begin_round(self) -> None:
+        """A control step starts: promises that cannot be kept are dropped, so their robots
+        decide again (the robot being followed out of a cell stopped in it instead)."""
+        self._round.clear()
+        for m in self.movers.values():
+            for k, c in enumerate(m.route):
+                if self.owner[c] == m.slot or self.pending[c] != m.slot:
+                    continue
+                holder = self.movers.get(int(self.owner[c]))
+                if holder is not None and (holder.cell == c or c in holder.route):
+                    for d in m.route[k:]:
+                        if self.pending[d] == m.slot:
+                            self.pending[d] = FREE
+                    del m.route[k:]
+                    self._let_go_unneeded(m)
                 break
-            for k in range(a, b):
-                c = int(cells[k])
-                owner[c] = slot
-                keep = float(until[k])
-                if held.get(c, -math.inf) < keep:
-                    held[c] = keep
-            j += 1
-        hold.claimed = j
-        behind = progress - claims.step
-        for c in [c for c, keep in held.items() if -math.inf < keep < behind and c not in hold.footprint]:
-            self._let_go(hold, c)
-        if j >= n:
-            return claims.length
-        return max(0.0, float(at[j - 1])) if j > 0 else 0.0
 
-    def retract(self, hold: Hold, progress: float) -> None:
-        """Give back what was claimed ahead of the robot (kept: the cells under it and the
-        samples up to ``progress``): a robot that makes way for another must not stand in
-        its way with claims it cannot use."""
-        claims = hold.claims
-        if claims is None:
-            return
-        j = int(np.searchsorted(claims.at, progress, side="right"))
-        if j >= hold.claimed:
-            return
-        for k in range(int(claims.first[j]), int(claims.first[hold.claimed])):
-            c = int(claims.cells[k])
-            if c not in hold.footprint:
-                self._let_go(hold, c)
-        hold.claimed = j
+    def wants_decision(self, m: Mover, near_end: bool) -> bool:
+        """Whether the robot should commit to a further cell now: it has a goal, it is not at
+        its goal's cell with nothing left to do, and its route is empty or (``near_end``: it
+        is close to the last cell) shorter than AHEAD."""
+        if m.dist is None or m.slot in self._round:
+            return False
+        frontier = m.route[-1] if m.route else m.cell
+        if frontier == m.goal_cell:
+            return False
+        return not m.route or (len(m.route) < self.ahead and near_end)
 
-    def release(self, hold: Hold) -> None:
-        """The robot left the world: every cell it held is free."""
-        for c in list(hold.held):
-            self._let_go(hold, c)
-        hold.footprint, hold.claims, hold.claimed, hold.blocked_by = (), None, 0, FREE
+    def decide(self, m: Mover, now: float = 0.0) -> bool:
+        """Commit the robot to its next cell, pushing robots of lower priority out of the way
+        if need be. False when it stays (then ``waiting_for`` says who is in its way)."""
+        self._round.add(m.slot)
+        if m.gave_way is not None and m.gave_way[1] <= now:
+            m.gave_way = None
+        moved = self._pibt(m, m.priority, frozenset(), 0)
+        if not moved and m.waiting_for != FREE and not m.route:
+            moved = self._give_way(m, now)
+        return moved
 
-    def _let_go(self, hold: Hold, c: int) -> None:
-        hold.held.pop(c, None)
-        if self.owner[c] == hold.slot:
-            self.owner[c] = FREE
+    def _give_way(self, m: Mover, now: float) -> bool:
+        """A swap in a dead end: the robot ``m`` waits for stands still in the only way out, and
+        wants ``m``'s cell. Pushing cannot help (it has nowhere else to go), so ``m`` steps
+        aside into any free neighbour, and leaves its cell to the other for a while."""
+        other = self.movers.get(m.waiting_for)
+        if other is None or other.dist is None or other.route or m.cell == FREE or other.cell == FREE:
+            return False
+        theirs = [n for n in self._candidates(other, other.cell) if n != other.cell]
+        if not theirs or theirs[0] != m.cell:
+            return False  # it does not want this robot's cell: no swap to untangle
+        blocked = frozenset({other.cell})
+        for n in self._candidates(m, m.cell):
+            if n in blocked or n in m.route:
+                continue
+            sides = self._sides(m.cell, n)
+            if self._taken(n, m) or any(self._taken(c, m) for c in sides):
+                continue
+            gave = m.cell
+            self._commit(m, n, sides)
+            m.gave_way = (gave, now + GIVE_WAY_S)
+            return True
+        return False
 
-    def held_by(self, slots: set[int]) -> I64:
-        """The cells any of ``slots`` holds (flat indices)."""
-        if not slots:
-            return np.zeros(0, dtype=np.int64)
-        return np.flatnonzero(np.isin(self.owner, list(slots)))
+    def _candidates(self, m: Mover, frontier: int) -> list[int]:
+        """The neighbours of ``frontier`` the robot may step to, best first: nearest its goal
+        by the distance field, then by straight line (so ways look straight in the open)."""
+        dist = m.dist
+        assert dist is not None
+        g = self.graph
+        allowed = g.moves(m.model)[frontier]
+        gx, gy = m.goal_xy
+        found = []
+        for k in range(len(MOVES)):
+            if allowed[k]:
+                n = g.neighbour(frontier, k)
+                d = float(dist[n])
+                if math.isfinite(d):
+                    cx, cy = g.centre(n)
+                    found.append((d, math.hypot(cx - gx, cy - gy), k, n))
+        found.sort()
+        return [n for *_, n in found]
+
+    def _pibt(self, m: Mover, rank: tuple[float, int], forbid: frozenset[int], depth: int) -> bool:
+        frontier = m.route[-1] if m.route else m.cell
+        if frontier == FREE or m.dist is None:
+            return False
+        here = float(m.dist[frontier])
+        m.waiting_for = FREE
+        given = m.gave_way[0] if m.gave_way is not None else FREE
+        for n in self._candidates(m, frontier):
+            if n in forbid or n == m.cell or n in m.route or n == given:
+                continue  # (never back over its own route, nor into a cell it gave way from)
+            if float(m.dist[n]) >= here and frontier not in forbid and depth == 0:
+                break  # staying is at least as good as anything left (and nobody needs its cell)
+            sides = self._sides(frontier, n)
+            if any(self._taken(s, m) for s in sides):
+                continue
+            if self.pending[n] not in (FREE, m.slot):
+                continue
+            o = int(self.owner[n])
+            if o in (FREE, m.slot):
+                self._commit(m, n, sides)
+                return True
+            other = self.movers.get(o)
+            if other is None:
+                continue
+            if other.route and n not in other.route and n not in (other.cell,):
+                # it is on its way out of n: follow it in
+                self._commit(m, n, sides, follow=True)
+                return True
+            if depth < MAX_PUSH_DEPTH and other.pushable and other.slot not in self._round and other.priority > rank:
+                self._round.add(other.slot)
+                if self._pibt(other, rank, forbid | {n, frontier, *sides}, depth + 1):
+                    self._commit(m, n, sides, follow=True)
+                    return True
+            if m.waiting_for == FREE:
+                m.waiting_for = o
+        return False
+
+    def _taken(self, c: int, m: Mover) -> bool:
+        o, p = int(self.owner[c]), int(self.pending[c])
+        return (o != FREE and o != m.slot) or (p != FREE and p != m.slot)
+
+    def _commit(self, m: Mover, n: int, sides: tuple[int, ...], follow: bool = False) -> None:
+        m.route.append(n)
+        m.waiting_for = FREE
+        for s in sides:
+            self.owner[s] = m.slot
+            m.held.add(s)
+        if self.owner[n] in (FREE, m.slot):
+            self.owner[n] = m.slot
+            m.held.add(n)
+        else:  # another robot is leaving it: promised to this one
+            self.pending[n] = m.slot
+
+    # -- driving ---------------------------------------------------------------------------------
+
+    def way(self, m: Mover) -> list[int]:
+        """The route cells the robot holds, in order: it may drive up to the last one."""
+        out = []
+        for c in m.route:
+            if self.owner[c] != m.slot:
+                break
+            out.append(c)
+        return out
+
+    def held_by_others(self, cells: I64, slot: int) -> npt.NDArray[np.bool_]:
+        o = self.owner[cells]
+        taken: npt.NDArray[np.bool_] = (o != FREE) & (o != slot)
+        return taken
+
+    def hold_free(self, m: Mover, cells: tuple[int, ...]) -> bool:
+        """Take ``cells`` if every one is free or the robot's already (all or none)."""
+        if any(self._taken(c, m) for c in cells):
+            return False
+        for c in cells:
+            self.owner[c] = m.slot
+            m.held.add(c)
+        return True
