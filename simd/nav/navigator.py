@@ -128,6 +128,7 @@ class NavRobot:
     result: NavigationResult | None = None
     feedback: NavigationFeedback | None = None
     ended: str = ""  # how its goal ended, for the next fleet summary
+    held_up_at_goal: bool = False  # in its goal's cell, the goal point's cells held by others
 
     @property
     def active(self) -> bool:
@@ -529,9 +530,10 @@ class Navigator:
             if not (robot.active and robot.planned) or robot.overridden_until >= self._now:
                 continue
             m = robot.mover
-            # the oldest goal goes first; a robot in its goal's cell goes last (as PIBT resets
-            # an agent's priority at its goal): it may be pushed out, and comes back
-            m.priority = (math.inf if m.cell == m.goal_cell else robot.started, m.slot)
+            # the oldest goal goes first; a robot that stands in its goal's cell but cannot
+            # reach the goal point for the robots around it goes last (as PIBT resets an
+            # agent's priority at its goal): it may be pushed out, and comes back
+            m.priority = (math.inf if robot.held_up_at_goal else robot.started, m.slot)
             near = False
             if m.route:
                 cx, cy = traffic.graph.centre(m.route[-1])
@@ -559,16 +561,19 @@ class Navigator:
         m = robot.mover
         way = traffic.way(m)
         pts = [(x, y)]
-        if way and m.cell != FREE:  # through the middle of its own cell: its steps are planned from there
-            pts.append(graph.centre(m.cell))
-        pts += [graph.centre(c) for c in way]
+        if way and m.cell != FREE:  # along the line of its steps, from the middle of its cell
+            pts += _onto([graph.centre(m.cell)] + [graph.centre(c) for c in way], x, y)
+        else:
+            pts += [graph.centre(c) for c in way]
         last = way[-1] if way else m.cell
+        robot.held_up_at_goal = False
         if last == m.goal_cell and robot.goal is not None and len(way) == len(m.route):
             gx, gy = robot.goal.x, robot.goal.y
             if traffic.hold_free(m, traffic.box(gx, gy, m.radius)):
                 pts.append((gx, gy))
             elif not way:
                 pts.append(graph.centre(last))
+                robot.held_up_at_goal = True
         elif not way and m.cell != FREE:
             pts.append(graph.centre(m.cell))  # settle at the centre of its cell
         if not self.config.lanes and len(pts) > 2:
@@ -832,6 +837,23 @@ class Navigator:
             robot.ended = ""
         if rows:
             self._events.fleet = FleetNavigation(stamp=Time.from_seconds(now), robots=rows)
+
+
+def _onto(line: list[tuple[float, float]], x: float, y: float) -> list[tuple[float, float]]:
+    """The rest of polyline ``line`` from the point on it nearest (x, y): where a robot that
+    strayed or cut a corner joins its way again (the later of two equally near segments)."""
+    best, at, k_best = math.inf, line[0], 0
+    for k in range(len(line) - 1):
+        (ax, ay), (bx, by) = line[k], line[k + 1]
+        dx, dy = bx - ax, by - ay
+        length2 = dx * dx + dy * dy
+        t = 0.0 if length2 == 0 else min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / length2))
+        px, py = ax + t * dx, ay + t * dy
+        d = math.hypot(px - x, py - y)
+        if d <= best + 1e-9:
+            best, at, k_best = d, (px, py), k
+    rest = line[k_best + 1 :]
+    return ([at] if best > 0.01 or not rest else []) + rest
 
 
 def _first_step(way: list[tuple[float, float]]) -> tuple[float, float]:

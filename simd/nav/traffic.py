@@ -236,8 +236,8 @@ class Traffic:
         if other is None or other.dist is None or other.route or m.cell == FREE or other.cell == FREE:
             return False
         theirs = [n for n in self._candidates(other, other.cell) if n != other.cell]
-        if not theirs or theirs[0] != m.cell:
-            return False  # it does not want this robot's cell: no swap to untangle
+        if theirs != [m.cell]:
+            return False  # it could go elsewhere (pushing will see to it): no dead end to untangle
         blocked = frozenset({other.cell})
         for n in self._candidates(m, m.cell):
             if n in blocked or n in m.route:
