@@ -81,7 +81,7 @@ class Traffic:
         self.owner = np.full(graph.count, FREE, dtype=np.int64)
         self.pending = np.full(graph.count, FREE, dtype=np.int64)
         self.movers: dict[int, Mover] = {}
-        self._round: set[int] = set()  # the robots that decided in this control step
+        self.decided: set[int] = set()  # the robots that decided in this control step
 
     # -- robots arriving and leaving --------------------------------------------------------------
 
@@ -192,7 +192,7 @@ class Traffic:
     def begin_round(self) -> None:
         """A control step starts: promises that cannot be kept are dropped, so their robots
         decide again (the robot being followed out of a cell stopped in it instead)."""
-        self._round.clear()
+        self.decided.clear()
         for m in self.movers.values():
             for k, c in enumerate(m.route):
                 if self.owner[c] == m.slot or self.pending[c] != m.slot:
@@ -210,7 +210,7 @@ class Traffic:
         """Whether the robot should commit to a further cell now: it has a goal, it is not at
         its goal's cell with nothing left to do, and its route is empty or (``near_end``: it
         is close to the last cell) shorter than AHEAD."""
-        if m.dist is None or m.slot in self._round:
+        if m.dist is None or m.slot in self.decided:
             return False
         frontier = m.route[-1] if m.route else m.cell
         if frontier == m.goal_cell:
@@ -220,7 +220,7 @@ class Traffic:
     def decide(self, m: Mover, now: float = 0.0) -> bool:
         """Commit the robot to its next cell, pushing robots of lower priority out of the way
         if need be. False when it stays (then ``waiting_for`` says who is in its way)."""
-        self._round.add(m.slot)
+        self.decided.add(m.slot)
         if m.gave_way is not None and m.gave_way[1] <= now:
             m.gave_way = None
         moved = self._pibt(m, m.priority, frozenset(), 0)
@@ -298,8 +298,8 @@ class Traffic:
                 # it is on its way out of n: follow it in
                 self._commit(m, n, sides, follow=True)
                 return True
-            if depth < MAX_PUSH_DEPTH and other.pushable and other.slot not in self._round and other.priority > rank:
-                self._round.add(other.slot)
+            if depth < MAX_PUSH_DEPTH and other.pushable and other.slot not in self.decided and other.priority > rank:
+                self.decided.add(other.slot)
                 if self._pibt(other, rank, forbid | {n, frontier, *sides}, depth + 1):
                     self._commit(m, n, sides, follow=True)
                     return True

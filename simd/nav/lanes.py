@@ -1,0 +1,258 @@
+"""Navigation on a grid map (a MovingAI warehouse): robots drive from cell centre to cell
+centre, in lanes, and take turns by priority inheritance (simd/nav/traffic.py).
+
+Each goal's plan is a distance field over the map's cells (simd/nav/cells.py); a robot commits
+to the neighbour nearest its goal whenever it nears the last cell it holds, pushing robots of
+lower priority out of its way, and drives along the centres of the cells it holds.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING
+
+import numpy as np
+import numpy.typing as npt
+
+from simd.core.models import RobotModel
+from simd.core.worldfile import WorldGeometry
+from simd.nav.cells import CellGraph, cell_size_for
+from simd.nav.traffic import FREE, Mover, Traffic
+
+if TYPE_CHECKING:
+    from simd.nav.navigator import NavRobot
+
+F64 = npt.NDArray[np.float64]
+I64 = npt.NDArray[np.int64]
+
+#: commit to the next cell when this close (in cells) to the centre of the last one held
+DECIDE_WITHIN_CELLS = 0.6
+#: cells a robot commits to ahead of the one it stands in
+AHEAD = 2
+
+
+class LaneFloor:
+    """A grid world's cells, the robots on them, and the way each may drive."""
+
+    def __init__(self, world: WorldGeometry, cell: float) -> None:
+        self.graph = CellGraph(world, cell)
+        self.traffic = Traffic(self.graph, ahead=AHEAD)
+
+    def describe(self) -> str:
+        return f"{self.graph.width} x {self.graph.height} cells of {self.graph.size:g} m, in lanes"
+
+    def refuses(self, model: RobotModel) -> str | None:
+        if self.graph.fits(model):
+            return None
+        return (
+            f"a {model.name} needs cells of at least {cell_size_for(model):g} m and this map's are "
+            f"{self.graph.size:g} m (simd --cell-size)"
+        )
+
+    def add(self, robot: NavRobot) -> None:
+        self.traffic.add(robot.slot, robot.model)
+
+    def remove(self, robot: NavRobot) -> None:
+        m = self.traffic.movers.get(robot.slot)
+        if m is not None:
+            self.traffic.remove(m)
+
+    def _m(self, robot: NavRobot) -> Mover:
+        return self.traffic.movers[robot.slot]
+
+    def stand(self, robot: NavRobot, x: float, y: float) -> None:
+        self.traffic.stand(self._m(robot), x, y)
+
+    # -- planning --------------------------------------------------------------------------------
+
+    def plan(self, robot: NavRobot, here: tuple[float, float], blocked: F64 | None) -> F64 | None:
+        """The goal's distance field (with the cells holding ``blocked`` points treated as
+        walls): the way the robot means to take, from where it stands, or None."""
+        goal = robot.goal
+        assert goal is not None
+        g = self.graph
+        m = self._m(robot)
+        goal_cell = self._goal_cell(robot.model, goal.x, goal.y, goal.tolerance)
+        if goal_cell is None:
+            return None
+        cells = None
+        if blocked is not None and len(blocked):
+            cells = np.unique(np.array([c for x, y in blocked if (c := g.index(float(x), float(y))) is not None]))
+        dist = g.distances(robot.model, goal_cell, cells)
+        start = m.cell if m.cell != FREE else g.index(*here)
+        if start is None or not math.isfinite(self._reach(dist, start)):
+            return None
+        self.traffic.set_goal(m, dist, goal_cell, (goal.x, goal.y), robot.started)
+        return self._descent(robot, here)
+
+    def _reach(self, dist: npt.NDArray[np.float32], start: int) -> float:
+        """Metres from ``start`` to the goal (from a neighbour when the robot stands where its
+        circle does not fit, e.g. spawned against a wall)."""
+        d = float(dist[start])
+        if math.isfinite(d):
+            return d
+        g = self.graph
+        near = [g.neighbour(start, k) for k in range(8)]
+        return min((float(dist[n]) for n in near if 0 <= n < g.count), default=math.inf)
+
+    def _goal_cell(self, model: RobotModel, x: float, y: float, tolerance: float) -> int | None:
+        """The goal's cell, or the nearest cell the model stands in within the goal's tolerance
+        plus a cell (the robot drives on to the goal point from there)."""
+        g = self.graph
+        stand = g.standable(model)
+        c = g.index(x, y)
+        if c is not None and stand[c]:
+            return c
+        k = max(1, math.ceil((tolerance + g.size) / g.size))
+        at = g.grid.cell(x, y)
+        if at is None:
+            return None
+        best, best_d = None, math.inf
+        for dr in range(-k, k + 1):
+            for dc in range(-k, k + 1):
+                r, q = at[0] + dr, at[1] + dc
+                if 0 <= r < g.height and 0 <= q < g.width and stand[r * g.width + q]:
+                    cx, cy = g.grid.centre(r, q)
+                    d = math.hypot(cx - x, cy - y)
+                    if d < best_d:
+                        best, best_d = r * g.width + q, d
+        return best
+
+    def _descent(self, robot: NavRobot, here: tuple[float, float]) -> F64:
+        """The way down the distance field from the robot's cell (what /plan shows)."""
+        m = self._m(robot)
+        g = self.graph
+        dist = m.dist
+        assert dist is not None and robot.goal is not None
+        moves = g.moves(robot.model)
+        c = m.cell if m.cell != FREE else g.index(*here)
+        cells = []
+        for _ in range(g.count):
+            if c is None or c == FREE or c == m.goal_cell:
+                break
+            nxt = min((g.neighbour(c, k) for k in range(8) if moves[c, k]), key=lambda n: float(dist[n]), default=FREE)
+            if nxt == FREE or float(dist[nxt]) >= float(dist[c]):
+                break
+            cells.append(nxt)
+            c = nxt
+        points = [here, *(g.centre(k) for k in cells), (robot.goal.x, robot.goal.y)]
+        return _straightened(np.array(points))
+
+    def stop(self, robot: NavRobot) -> None:
+        """No goal to drive to (it ended, or a new plan is coming): it stands where it is headed."""
+        m = self._m(robot)
+        self.traffic.set_goal(m, None, FREE, m.goal_xy, math.inf)
+
+    # -- deciding and driving --------------------------------------------------------------------
+
+    def decide(self, driven: list[NavRobot], now: float) -> None:
+        """Robots that near the last cell they hold commit to the next one, the oldest goal
+        first; a robot that stands in its goal's cell but cannot reach the goal point for the
+        robots around it goes last (as PIBT resets an agent's priority at its goal)."""
+        traffic = self.traffic
+        traffic.begin_round()
+        size = self.graph.size
+        deciding = []
+        for robot in driven:
+            m = self._m(robot)
+            m.priority = (math.inf if robot.held_up_at_goal else robot.started, m.slot)
+            near = False
+            if m.route and robot.xy is not None:
+                cx, cy = self.graph.centre(m.route[-1])
+                near = math.hypot(cx - robot.xy[0], cy - robot.xy[1]) <= DECIDE_WITHIN_CELLS * size
+            if traffic.wants_decision(m, near):
+                deciding.append(m)
+        for m in sorted(deciding, key=lambda m: m.priority):
+            if m.slot not in traffic.decided:  # pushed already this round
+                traffic.decide(m, now)
+
+    def way(self, robot: NavRobot, x: float, y: float) -> list[tuple[float, float]]:
+        """Where the robot may drive now: along the centres of the cells it holds ahead, from
+        the point of that line nearest it, and in its goal's cell on to the goal point itself
+        (when the cells its body needs there are free)."""
+        traffic = self.traffic
+        g = self.graph
+        m = self._m(robot)
+        way = traffic.way(m)
+        pts = [(x, y)]
+        if way and m.cell != FREE:
+            pts += _onto([g.centre(m.cell)] + [g.centre(c) for c in way], x, y)
+        else:
+            pts += [g.centre(c) for c in way]
+        last = way[-1] if way else m.cell
+        robot.held_up_at_goal = False
+        if last == m.goal_cell and robot.goal is not None and len(way) == len(m.route):
+            gx, gy = robot.goal.x, robot.goal.y
+            if traffic.hold_free(m, traffic.box(gx, gy, m.radius)):
+                pts.append((gx, gy))
+            elif not way:
+                pts.append(g.centre(last))
+                robot.held_up_at_goal = True
+        elif not way and m.cell != FREE:
+            pts.append(g.centre(m.cell))  # settle at the centre of its cell
+        return pts
+
+    def waiting_for(self, robot: NavRobot) -> int:
+        m = self._m(robot)
+        return m.waiting_for if not m.route else FREE
+
+    def yielding(self, robot: NavRobot) -> bool:
+        return False
+
+    def intrudes(self, robot: NavRobot, x: float, y: float) -> bool:
+        """Whether the robot's body at (x, y) would reach into a cell another robot holds that
+        it does not reach into already."""
+        m = self._m(robot)
+        cells = [c for c in self.traffic.box(x, y, m.radius) if c not in m.box]
+        owners = self.traffic.owner[cells] if cells else np.zeros(0, np.int64)
+        return bool(np.any((owners != FREE) & (owners != m.slot)))
+
+    def owner_at(self, wx: F64, wy: F64) -> I64:
+        """The holder of each world point's cell (FREE off the floor)."""
+        g = self.graph.grid
+        col = np.floor((wx - g.x0) / g.resolution).astype(np.int64)
+        row = np.floor((wy - g.y0) / g.resolution).astype(np.int64)
+        on = (col >= 0) & (col < g.width) & (row >= 0) & (row < g.height)
+        out = np.full(wx.shape, FREE, dtype=np.int64)
+        out[on] = self.traffic.owner[row[on] * g.width + col[on]]
+        return out
+
+    def left(self, robot: NavRobot, x: float, y: float) -> float:
+        """Metres left to the goal (down its distance field)."""
+        m = self._m(robot)
+        if m.dist is None or robot.goal is None:
+            return 0.0
+        g = self.graph
+        c = g.index(x, y)
+        if c is None or not math.isfinite(float(m.dist[c])):
+            return math.hypot(robot.goal.x - x, robot.goal.y - y)
+        gx, gy = g.centre(m.goal_cell)
+        return float(m.dist[c]) + math.hypot(robot.goal.x - gx, robot.goal.y - gy)
+
+
+def _onto(line: list[tuple[float, float]], x: float, y: float) -> list[tuple[float, float]]:
+    """The rest of polyline ``line`` from the point on it nearest (x, y): where a robot that
+    strayed or cut a corner joins its way again (the later of two equally near segments)."""
+    best, at, k_best = math.inf, line[0], 0
+    for k in range(len(line) - 1):
+        (ax, ay), (bx, by) = line[k], line[k + 1]
+        dx, dy = bx - ax, by - ay
+        length2 = dx * dx + dy * dy
+        t = 0.0 if length2 == 0 else min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / length2))
+        px, py = ax + t * dx, ay + t * dy
+        d = math.hypot(px - x, py - y)
+        if d <= best + 1e-9:
+            best, at, k_best = d, (px, py), k
+    rest = line[k_best + 1 :]
+    return ([at] if best > 0.01 or not rest else []) + rest
+
+
+def _straightened(points: F64) -> F64:
+    """A polyline with its collinear middle points left out (a cell path's straight runs)."""
+    if len(points) < 3:
+        return points
+    d = np.diff(points, axis=0)
+    cross = d[:-1, 0] * d[1:, 1] - d[:-1, 1] * d[1:, 0]
+    keep = np.concatenate(([True], np.abs(cross) > 1e-9, [True]))
+    kept: F64 = points[keep]
+    return kept
