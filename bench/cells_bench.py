@@ -6,11 +6,13 @@ compiled and in Python.
 Two floors of ``--width`` x ``--height`` cells (the defaults are the 1 000-robot warehouse's):
 ``--blocked`` of the cells blocked at random, and the 1 000-robot warehouse map
 (worlds/warehouse.py) when that is the size asked for. The moves are those CellGraph allows
-between free cells (a diagonal only past two free side cells), the cell 0.35 m (a burger's).
-Each floor gets ``--goals`` goals drawn among its free cells; each goal is searched by both
-twins in turn (a slower spell of a shared machine hits both alike), their arrays must be the
-same bit for bit, and the medians and their ratio are printed. Numbers are printed, not
-checked: they belong in cells.py's docstring, with the machine they were measured on.
+between free cells (a diagonal only past two free side cells), the cell 0.35 m (a burger's):
+the eight moves, and the sixteen CellGraph.distances searches (``with_knights`` of the eight).
+Each floor gets ``--goals`` goals drawn among its free cells; each goal is searched over both
+move sets by both twins in turn (a slower spell of a shared machine hits all four alike),
+their arrays must be the same bit for bit, and the medians and their ratio are printed.
+Numbers are printed, not checked: they belong in cells.py's docstring, with the machine they
+were measured on.
 """
 
 from __future__ import annotations
@@ -23,7 +25,7 @@ import time
 import numpy as np
 import numpy.typing as npt
 
-from simd.nav.cells import MOVES, NATIVE_UNAVAILABLE, dijkstra_native, dijkstra_python
+from simd.nav.cells import MOVES, NATIVE_UNAVAILABLE, dijkstra_native, dijkstra_python, with_knights
 from worlds.warehouse import warehouse_for_robots
 
 CELL_M = 0.35
@@ -44,25 +46,31 @@ def moves_of(free: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
 
 
 def measure(name: str, free: npt.NDArray[np.bool_], goals: int, rng: np.random.Generator) -> None:
-    moves = moves_of(free)
+    eight = moves_of(free)
     width = free.shape[1]
-    times: dict[str, list[float]] = {"compiled": [], "python": []}
+    move_sets = {"8 moves": eight, "16 moves": with_knights(eight, width)}
+    twins = (("compiled", dijkstra_native), ("python", dijkstra_python))
+    times: dict[tuple[str, str], list[float]] = {(kind, twin): [] for kind in move_sets for twin, _ in twins}
     reached = []
     for goal in rng.choice(np.flatnonzero(free), goals).tolist():
-        fields = {}
-        for twin, search in (("compiled", dijkstra_native), ("python", dijkstra_python)):
-            t0 = time.perf_counter()
-            fields[twin] = search(moves, width, goal, CELL_M)
-            times[twin].append(time.perf_counter() - t0)
-        if not np.array_equal(fields["compiled"], fields["python"]):
-            raise RuntimeError(f"the twins differ for goal {goal} on the {name}")
+        for kind, moves in move_sets.items():
+            fields = {}
+            for twin, search in twins:
+                t0 = time.perf_counter()
+                fields[twin] = search(moves, width, goal, CELL_M)
+                times[kind, twin].append(time.perf_counter() - t0)
+            if not np.array_equal(fields["compiled"], fields["python"]):
+                raise RuntimeError(f"the twins differ for goal {goal} over {kind} on the {name}")
         reached.append(int(np.isfinite(fields["compiled"]).sum()))
-    ms = {twin: 1e3 * statistics.median(values) for twin, values in times.items()}
     print(f"{name}: {free.shape[1]}x{free.shape[0]} cells, {free.mean():.0%} free, {goals} goals, "
           f"median {statistics.median(reached):.0f} cells reached")  # fmt: skip
-    print(f"  compiled: median {ms['compiled']:.3f} ms (max {1e3 * max(times['compiled']):.3f})")
-    print(f"  python:   median {ms['python']:.2f} ms (max {1e3 * max(times['python']):.2f})")
-    print(f"  python / compiled: {ms['python'] / ms['compiled']:.0f}x")
+    for kind in move_sets:
+        ms = {twin: 1e3 * statistics.median(times[kind, twin]) for twin, _ in twins}
+        worst = {twin: 1e3 * max(times[kind, twin]) for twin, _ in twins}
+        print(f"  {kind}:")
+        print(f"    compiled: median {ms['compiled']:.3f} ms (max {worst['compiled']:.3f})")
+        print(f"    python:   median {ms['python']:.2f} ms (max {worst['python']:.2f})")
+        print(f"    python / compiled: {ms['python'] / ms['compiled']:.0f}x")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -3,9 +3,11 @@
  *
  * The Python search is the reference: tests compare the two distance arrays bit for bit
  * (np.array_equal, inf included).  For that, this file repeats its choices exactly:
- *   - the moves in the same order (MOVES below, as cells.MOVES: the four axis moves, then the
- *     four diagonals), a step costing ``size`` (axis) or ``size * SQRT2`` (diagonal), both
- *     worked out once as float64 before the search;
+ *   - the moves in the same order (MOVES below, as cells.ALL_MOVES: the four axis moves, the
+ *     four diagonals, then the eight knight's moves), move (dr, dc) costing
+ *     ``size * sqrt(dr*dr + dc*dc)`` worked out once in float64 before the search as the
+ *     reference works it out (math.sqrt and C's sqrt are both correctly rounded, IEEE 754, so
+ *     sqrt(1), sqrt(2) and sqrt(5) are the same doubles in both: tested);
  *   - the same float64 arithmetic: a neighbour's new distance is d + step, where d is the
  *     distance the cell was popped with; it replaces the old one only when strictly smaller
  *     (of two ways of equal length, the one found first stays); the file is compiled without
@@ -20,11 +22,14 @@
  * the two searches the same step for step, which leaves nothing to argue about.)
  *
  * dijkstra(moves, width, goal, size) -> bytearray
- *     moves: a C-contiguous (cells, 8) bool buffer, moves[c, k] whether a robot may step from
- *     cell c (flat, row * width + col) by move k; width >= 1 divides cells; size finite > 0.
- *     No move may lead off the grid (ValueError naming the first that does: the search trusts
- *     the moves and does no bounds checks).  Returns the distances to ``goal`` as float32
- *     (native byte order), inf where there is no way, all inf when ``goal`` is not a cell.
+ *     moves: a C-contiguous (cells, 8) or (cells, 16) bool buffer, moves[c, k] whether a robot
+ *     may step from cell c (flat, row * width + col) by move k of MOVES; the number of columns
+ *     picks the move set (the first 8 moves, or all 16); width >= 1 divides cells; size finite
+ *     > 0.  No move may lead off the grid (ValueError naming the first that does, in cell
+ *     order then move order: the search trusts the moves and does no bounds checks; a knight's
+ *     move reaches two cells, so for 16 columns the check looks two cells deep).  Returns the
+ *     distances to ``goal`` as float32 (native byte order), inf where there is no way, all inf
+ *     when ``goal`` is not a cell.
  *     The GIL is released during the search; the caller must not write ``moves`` meanwhile.
  *     The moves are meant to be symmetric (then the distances to the goal are those from it);
  *     that is not checked.
@@ -42,10 +47,20 @@
 #error "simd/nav/_cellpaths.c must not be compiled with -ffast-math"
 #endif
 
-#define SQRT2 1.4142135623730951 /* the double nearest sqrt(2), as Python's math.sqrt(2.0) */
+#if defined(__GNUC__) || defined(__clang__)
+#define ALWAYS_INLINE inline __attribute__((always_inline))
+#else
+#define ALWAYS_INLINE inline
+#endif
 
-/* (d_row, d_col) in cells.MOVES's order: the axis moves first */
-static const int MOVES[8][2] = {{0, 1}, {1, 0}, {0, -1}, {-1, 0}, {1, 1}, {1, -1}, {-1, -1}, {-1, 1}};
+/* (d_row, d_col) in cells.ALL_MOVES's order: the axis moves, the diagonals (cells.MOVES: a
+ * (cells, 8) graph uses these), then the knight's moves (cells.KNIGHTS: a (cells, 16) graph) */
+#define KINDS_8 8
+#define KINDS_16 16
+static const int MOVES[KINDS_16][2] = {
+    {0, 1}, {1, 0},  {0, -1},  {-1, 0},  {1, 1},   {1, -1},  {-1, -1}, {-1, 1},
+    {1, 2}, {2, 1},  {2, -1},  {1, -2},  {-1, -2}, {-2, -1}, {-2, 1},  {-1, 2},
+};
 
 /* A queue entry: a distance and a cell, ordered by (distance, cell) as the reference's tuples.
  * Distances are >= +0.0 and never NaN, and such doubles order as their bits do as unsigned
@@ -134,17 +149,19 @@ static Entry heap_pop(Heap *q) {
 
 typedef struct {
     /* inputs */
-    const unsigned char *moves; /* cells x 8, 0 or 1 */
+    const unsigned char *moves; /* cells x kinds, 0 or 1 */
     Py_ssize_t cells, width, goal;
+    int kinds; /* KINDS_8 or KINDS_16 */
     double size;
     /* output: cells float32, filled; status 0 done, -1 out of memory */
     float *out;
     int status;
 } Search;
 
-/* The search.  Runs without the GIL: touches no Python object (``out`` is a new bytearray's
- * buffer that nobody else holds yet). */
-static void search(Search *s) {
+/* The search over the first ``kinds`` moves.  Runs without the GIL: touches no Python object
+ * (``out`` is a new bytearray's buffer that nobody else holds yet).  Inlined into search() once
+ * per move set, so that each copy's loop over the moves has a constant count. */
+static ALWAYS_INLINE void search_kinds(Search *s, const int kinds) {
     Py_ssize_t n = s->cells;
     s->status = 0;
     if (s->goal < 0 || s->goal >= n) {
@@ -155,11 +172,12 @@ static void search(Search *s) {
     Heap open = {NULL, 0, 0};
     if (dist == NULL) goto oom;
     for (Py_ssize_t i = 0; i < n; i++) dist[i] = INFINITY;
-    Py_ssize_t offset[8];
-    double step[8];
-    for (int k = 0; k < 8; k++) {
-        offset[k] = MOVES[k][0] * s->width + MOVES[k][1];
-        step[k] = k < 4 ? s->size : s->size * SQRT2;
+    Py_ssize_t offset[KINDS_16];
+    double step[KINDS_16];
+    for (int k = 0; k < kinds; k++) {
+        int dr = MOVES[k][0], dc = MOVES[k][1];
+        offset[k] = dr * s->width + dc;
+        step[k] = s->size * sqrt((double)(dr * dr + dc * dc)); /* as cells.dijkstra_python */
     }
     dist[s->goal] = 0.0;
     if (heap_push(&open, entry(0.0, s->goal)) < 0) goto oom;
@@ -168,8 +186,8 @@ static void search(Search *s) {
         double d = entry_d(e);
         Py_ssize_t c = entry_cell(e);
         if (d > dist[c]) continue; /* stale: reached by a shorter way since */
-        const unsigned char *allowed = s->moves + 8 * c;
-        for (int k = 0; k < 8; k++) {
+        const unsigned char *allowed = s->moves + (Py_ssize_t)kinds * c;
+        for (int k = 0; k < kinds; k++) {
             if (!allowed[k]) continue;
             Py_ssize_t nb = c + offset[k];
             double nd = d + step[k];
@@ -189,17 +207,29 @@ oom:
     free(dist);
 }
 
+static void search(Search *s) {
+    if (s->kinds == KINDS_16) {
+        search_kinds(s, KINDS_16);
+    } else {
+        search_kinds(s, KINDS_8);
+    }
+}
+
 /* The first (cell, move) in cell order, then move order, that leads off a grid ``width`` wide,
- * as *cell and *move; 0 when there is none.  Only the border cells can. */
-static int first_off_grid(const unsigned char *moves, Py_ssize_t cells, Py_ssize_t width, Py_ssize_t *cell,
-                          int *move) {
+ * as *cell and *move; 0 when there is none.  Only the cells within ``edge`` of the border can
+ * (the longest of the first ``kinds`` moves: 1 for 8, 2 for 16, a knight's move reaching two
+ * rows or two columns away), so those are the cells read, as cells.check_on_grid reads them. */
+static int first_off_grid(const unsigned char *moves, Py_ssize_t cells, Py_ssize_t width, int kinds,
+                          Py_ssize_t *cell, int *move) {
     Py_ssize_t rows = cells / width;
+    Py_ssize_t edge = kinds == KINDS_16 ? 2 : 1;
     for (Py_ssize_t r = 0; r < rows; r++) {
-        /* every column of the first and last rows, the first and last of the others */
-        Py_ssize_t stride = r == 0 || r == rows - 1 || width == 1 ? 1 : width - 1;
-        for (Py_ssize_t col = 0; col < width; col += stride) {
-            const unsigned char *allowed = moves + 8 * (r * width + col);
-            for (int k = 0; k < 8; k++) {
+        /* every column of the ``edge`` first and last rows, the ``edge`` first and last of the others */
+        int inner_row = r >= edge && r < rows - edge;
+        for (Py_ssize_t col = 0; col < width; col++) {
+            if (inner_row && col >= edge && col < width - edge) col = width - edge;
+            const unsigned char *allowed = moves + (Py_ssize_t)kinds * (r * width + col);
+            for (int k = 0; k < kinds; k++) {
                 Py_ssize_t to_r = r + MOVES[k][0], to_c = col + MOVES[k][1];
                 if (allowed[k] && (to_r < 0 || to_r >= rows || to_c < 0 || to_c >= width)) {
                     *cell = r * width + col;
@@ -224,12 +254,14 @@ static PyObject *dijkstra(PyObject *self, PyObject *args) {
     }
     const char *f = view.format ? view.format : "B";
     if (*f == '<' || *f == '>' || *f == '=' || *f == '@' || *f == '!') f++;
-    if (view.ndim != 2 || view.itemsize != 1 || f[0] != '?' || f[1] != '\0' || view.shape[1] != 8) {
+    if (view.ndim != 2 || view.itemsize != 1 || f[0] != '?' || f[1] != '\0' ||
+        (view.shape[1] != KINDS_8 && view.shape[1] != KINDS_16)) {
         PyBuffer_Release(&view);
-        PyErr_SetString(PyExc_ValueError, "moves must be a (cells, 8) bool buffer");
+        PyErr_SetString(PyExc_ValueError, "moves must be a (cells, 8) or (cells, 16) bool buffer");
         return NULL;
     }
     s.moves = view.buf;
+    s.kinds = (int)view.shape[1];
     s.cells = view.shape[0];
     if (s.width < 1 || s.cells % s.width != 0) {
         PyBuffer_Release(&view);
@@ -243,7 +275,7 @@ static PyObject *dijkstra(PyObject *self, PyObject *args) {
     }
     Py_ssize_t bad_cell;
     int bad_move;
-    if (first_off_grid(s.moves, s.cells, s.width, &bad_cell, &bad_move)) {
+    if (first_off_grid(s.moves, s.cells, s.width, s.kinds, &bad_cell, &bad_move)) {
         PyBuffer_Release(&view);
         PyErr_Format(PyExc_ValueError, "moves[%zd, %d] steps off the grid (%zd cells wide)", bad_cell, bad_move,
                      s.width);

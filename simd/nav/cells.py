@@ -20,19 +20,25 @@ which is what priority inheritance (traffic.py) needs.
 
 ``dijkstra`` runs the compiled twin, simd/nav/_cellpaths.c (label ``"cellpaths"`` in
 simd/core/native.py), when it is built, else ``dijkstra_python`` here, which stays the
-reference: both pop their queue in (distance, cell) order, try the moves in :data:`MOVES`
-order, replace a distance only by a strictly smaller one (of two ways of equal length, the one
-found first stays), add the same float64 steps in the same order and cast to float32 at the
-end, so their arrays are equal bit for bit (tested, and both against a Bellman-Ford relaxation).
+reference: both pop their queue in (distance, cell) order, try the moves in :data:`ALL_MOVES`
+order (the eight, then for a (cells, 16) graph the knight's moves), replace a distance only by
+a strictly smaller one (of two ways of equal length, the one found first stays), add the same
+float64 steps (``size * sqrt(dr*dr + dc*dc)``, a correctly rounded square root in both) in the
+same order and cast to float32 at the end, so their arrays are equal bit for bit (tested, and
+both against a Bellman-Ford relaxation, over the eight moves and over all sixteen).
 
 Speed (``python -m bench.cells_bench``: 134x123 cells of 0.35 m, as many as a 1 000-robot
 warehouse has, 50 goals among the free cells; on the 2-core development VM (AMD EPYC), shared
-with other work): with 30 % of the cells blocked at random (11 400 cells reached, median) a
-field takes 0.45 ms compiled and 11.4 ms in Python (median; 25x); on the 1 000-robot warehouse
-map itself (worlds/warehouse.py, 65 % free) 0.31 ms and 10.6 ms (34x). At a goal per robot
-every 40 s, that is ~1 % of a core instead of ~28 %. The C search spends ~35 ns a cell, most of
-it in the queue: a 4-ary heap whose entries are one 128-bit integer each (the distance's bits
-above the cell), so that ordering two takes one comparison, without branches on the many ties.
+with other work; medians, and the median of 5 runs): with 30 % of the cells blocked at random
+(11 400 cells reached) a field over the eight moves takes 0.47 ms compiled and 11.6 ms in
+Python (25x), over the sixteen that ``CellGraph.distances`` searches 0.72 ms and 17.1 ms (24x);
+on the 1 000-robot warehouse map itself (worlds/warehouse.py, 65 % free) 0.35 ms and 10.8 ms
+(31x) over the eight, 0.48 ms and 16.3 ms (34x) over the sixteen. At a goal per robot every
+40 s, the sixteen-move fields take ~1-2 % of a core instead of ~40 %. The C search spends ~40 ns
+a cell over the eight moves, ~65 ns over the sixteen (twice the moves to try, a third more
+edges, a sixth more pushes), most of it in the queue: a 4-ary heap whose entries are one
+128-bit integer each (the distance's bits above the cell), so that ordering two takes one
+comparison, without branches on the many ties. (Runs on this VM vary by up to a third.)
 """
 
 from __future__ import annotations
@@ -204,7 +210,11 @@ class CellGraph:
 #: the knight's moves of the distance fields, each as its two ways through the eight:
 #: (d_row, d_col), (first move, then move), (other first move, then move) as MOVES indices
 KNIGHTS: tuple[tuple[tuple[int, int], tuple[int, int], tuple[int, int]], ...] = tuple(
-    ((dr, dc), (MOVES.index(a), MOVES.index((dr - a[0], dc - a[1]))), (MOVES.index(b), MOVES.index((dr - b[0], dc - b[1]))))
+    (
+        (dr, dc),
+        (MOVES.index(a), MOVES.index((dr - a[0], dc - a[1]))),
+        (MOVES.index(b), MOVES.index((dr - b[0], dc - b[1]))),
+    )
     for dr, dc, a, b in (
         (1, 2, (0, 1), (1, 1)),
         (2, 1, (1, 0), (1, 1)),
@@ -240,16 +250,17 @@ def with_knights(moves: npt.NDArray[np.bool_], width: int) -> npt.NDArray[np.boo
 
 
 def dijkstra(moves: npt.NDArray[np.bool_], width: int, goal: int, size: float) -> F32:
-    """Distances to ``goal`` on the graph ``moves`` (cells, 8) of a grid ``width`` wide, a step
-    costing ``size`` along an axis and ``size * sqrt(2)`` diagonally: float32, inf where there
-    is no way, all inf when ``goal`` is not a cell. The moves must be symmetric (then distances
-    *to* the goal are distances *from* it; not checked). ValueError when ``moves`` is not a
-    C-contiguous (cells, 8) bool array, ``width`` (>= 1) does not divide its cells into rows,
-    ``size`` is not finite and > 0, or a move leads off the grid. Runs the compiled twin when
-    it is built (``moves`` read in place without the GIL: no other thread may write it
-    meanwhile), else ``dijkstra_python``; both return the same array, bit for bit."""
-    compiled = _native is not None and moves.ndim == 2 and moves.shape[1] == len(MOVES)
-    return (dijkstra_native if compiled else dijkstra_python)(moves, width, goal, size)
+    """Distances to ``goal`` on the graph ``moves`` of a grid ``width`` wide: (cells, 8) over
+    :data:`MOVES`, or (cells, 16) over :data:`ALL_MOVES` (the eight and the knight's moves, as
+    :func:`with_knights` makes them), move (dr, dc) costing ``size * sqrt(dr*dr + dc*dc)``:
+    float32, inf where there is no way, all inf when ``goal`` is not a cell. The moves must be
+    symmetric (then distances *to* the goal are distances *from* it; not checked). ValueError
+    when ``moves`` is not a C-contiguous (cells, 8) or (cells, 16) bool array, ``width`` (>= 1)
+    does not divide its cells into rows, ``size`` is not finite and > 0, or a move leads off the
+    grid. Runs the compiled twin when it is built (``moves`` read in place without the GIL: no
+    other thread may write it meanwhile), else ``dijkstra_python``; both return the same array,
+    bit for bit."""
+    return (dijkstra_python if _native is None else dijkstra_native)(moves, width, goal, size)
 
 
 def dijkstra_native(moves: npt.NDArray[np.bool_], width: int, goal: int, size: float) -> F32:
@@ -322,13 +333,17 @@ def check_on_grid(moves: npt.NDArray[np.bool_], width: int) -> None:
     if kinds == len(MOVES) and (
         not rows
         or not (
-            grid[0][:, _UP].any() or grid[-1][:, _DOWN].any() or grid[:, 0][:, _LEFT].any() or grid[:, -1][:, _RIGHT].any()
+            grid[0][:, _UP].any()
+            or grid[-1][:, _DOWN].any()
+            or grid[:, 0][:, _LEFT].any()
+            or grid[:, -1][:, _RIGHT].any()
         )
     ):
         return
     edge = 1 if kinds == len(MOVES) else 2  # knight's moves reach two cells
+    sides = [c for c in range(width) if c < edge or c >= width - edge]  # all of them when width <= 2 * edge
     for r in range(rows):
-        cols = range(width) if (r < edge or r >= rows - edge) else sorted({*range(edge), *range(width - edge, width)})
+        cols = range(width) if (r < edge or r >= rows - edge) else sides
         for c in cols:
             for k, (dr, dc) in enumerate(ALL_MOVES[:kinds]):
                 if grid[r, c, k] and not (0 <= r + dr < rows and 0 <= c + dc < width):

@@ -1,13 +1,17 @@
 """simd/nav/cells.py's distance fields: the compiled Dijkstra (_cellpaths.c) returns the
-Python reference's float32 array bit for bit, both agree with a Bellman-Ford relaxation
-written out here, and the table cases and input checks."""
+Python reference's float32 array bit for bit, over the eight moves and over the sixteen with
+the knight's moves (``with_knights``), both agree with a Bellman-Ford relaxation written out
+here, and the table cases, the knight's moves allowed, the steps' costs and input checks."""
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import math
 import re
 from collections.abc import Callable
 from dataclasses import dataclass
+from fractions import Fraction
 
 import numpy as np
 import numpy.typing as npt
@@ -19,7 +23,7 @@ from simd.core import native
 from simd.core.models import BURGER
 from simd.core.worldfile import load_world
 from simd.nav import cells
-from simd.nav.cells import CellGraph, cell_size_for, dijkstra, dijkstra_native, dijkstra_python
+from simd.nav.cells import CellGraph, cell_size_for, dijkstra, dijkstra_native, dijkstra_python, with_knights
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -35,6 +39,8 @@ SEARCHES = [
 ]
 #: the moves as (d_row, d_col), written out again: the contract, not a copy of the table
 MOVES = ((0, 1), (1, 0), (0, -1), (-1, 0), (1, 1), (1, -1), (-1, -1), (-1, 1))
+#: the sixteen of a (cells, 16) graph: the eight, then the knight's moves
+ALL_MOVES = (*MOVES, (1, 2), (2, 1), (2, -1), (1, -2), (-1, -2), (-2, -1), (-2, 1), (-1, 2))
 
 
 def moves_from(free: Moves, walls: Moves | None = None) -> Moves:
@@ -57,25 +63,42 @@ def moves_from(free: Moves, walls: Moves | None = None) -> Moves:
     return out.reshape(rows * cols, 8)
 
 
+def knights_from(moves: Moves, width: int) -> Moves:
+    """(cells, 16): ``moves`` (cells, 8), then each knight's move where every way of making it
+    as two of the eight is allowed (a loop over cells, written out again: the contract of
+    ``with_knights``). Each knight's move is two of the eight in two orders: an axis move and a
+    diagonal, and the diagonal first."""
+    n = len(moves)
+    out = np.zeros((n, 16), dtype=bool)
+    out[:, :8] = moves
+    for j, (dr, dc) in enumerate(ALL_MOVES[8:]):
+        ways = [(a, b) for a in range(8) for b in range(8) if np.add(MOVES[a], MOVES[b]).tolist() == [dr, dc]]
+        assert len(ways) == 2
+        for c in range(n):
+            out[c, 8 + j] = all(moves[c, a] and moves[c + MOVES[a][0] * width + MOVES[a][1], b] for a, b in ways)
+    return out
+
+
 def bellman_ford(moves: Moves, width: int, goal: int, size: float) -> F64:
     """The distances to ``goal`` by relaxing every move of every cell at once until nothing
-    changes: d(c) = min over the moves k allowed from c of |k| * size + d(c + k)."""
-    n = len(moves)
+    changes: d(c) = min over the moves k allowed from c of |k| * size + d(c + k), over the
+    eight moves or (16 columns) the sixteen."""
+    n, kinds = moves.shape
     if not 0 <= goal < n:
         return np.full(n, np.inf)
     rows = n // width
-    dist = np.full((rows + 2, width + 2), np.inf)  # a border no move reaches
-    dist[1 + goal // width, 1 + goal % width] = 0.0
-    allowed = moves.reshape(rows, width, 8)
+    dist = np.full((rows + 4, width + 4), np.inf)  # a border two cells deep that no move reaches
+    dist[2 + goal // width, 2 + goal % width] = 0.0
+    allowed = moves.reshape(rows, width, kinds)
     while True:
-        inner = dist[1:-1, 1:-1]
+        inner = dist[2:-2, 2:-2]
         best = inner.copy()
-        for k, (dr, dc) in enumerate(MOVES):
-            there = dist[1 + dr : 1 + dr + rows, 1 + dc : 1 + dc + width]
+        for k, (dr, dc) in enumerate(ALL_MOVES[:kinds]):
+            there = dist[2 + dr : 2 + dr + rows, 2 + dc : 2 + dc + width]
             best = np.minimum(best, np.where(allowed[:, :, k], there + math.hypot(dr, dc) * size, np.inf))
         if np.array_equal(best, inner):
             return best.ravel()
-        dist[1:-1, 1:-1] = best
+        dist[2:-2, 2:-2] = best
 
 
 @dataclass(frozen=True)
@@ -89,9 +112,10 @@ class Graph:
 
 
 @st.composite
-def graphs(draw: st.DrawFn, max_side: int = 60) -> Graph:
+def graphs(draw: st.DrawFn, max_side: int = 60, knights: bool = False) -> Graph:
     """Free cells drawn at random (numpy from a drawn seed), a share of the midpoints walls,
-    a cell size, and a goal: mostly a free cell, sometimes a blocked one or no cell at all."""
+    a cell size, and a goal: mostly a free cell, sometimes a blocked one or no cell at all.
+    The eight moves, or with ``knights`` the sixteen (``with_knights`` of the eight)."""
     side = st.integers(1, 5) | st.integers(max_side // 3, max_side)
     rows, cols = draw(side), draw(side)
     blocked = draw(st.sampled_from([0.0, 0.1, 0.3, 0.45]))
@@ -109,7 +133,25 @@ def graphs(draw: st.DrawFn, max_side: int = 60) -> Graph:
         goal = draw(st.integers(-3, -1) | st.integers(n, n + 3))
     else:
         goal = draw(st.integers(0, n - 1))  # blocked or free
-    return Graph(moves_from(free, walls), cols, goal, size)
+    moves = moves_from(free, walls)
+    return Graph(with_knights(moves, cols) if knights else moves, cols, goal, size)
+
+
+@st.composite
+def any_graphs(draw: st.DrawFn) -> Graph:
+    """Any (cells, 8) or (cells, 16) moves that stay on the grid, symmetric or not, dense or
+    sparse: the twins must agree on every graph they accept, not only on CellGraph's. (Not
+    for the Bellman-Ford oracle: on moves that are not symmetric the search's distances are
+    those *from* the goal, the oracle's those *to* it.)"""
+    rows, cols = draw(st.integers(1, 25)), draw(st.integers(1, 25))
+    kinds = draw(st.sampled_from([8, 16]))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    moves = rng.random((rows, cols, kinds)) < draw(st.sampled_from([0.1, 0.3, 0.6, 0.9]))
+    r, c = np.indices((rows, cols))
+    for k, (dr, dc) in enumerate(ALL_MOVES[:kinds]):
+        moves[:, :, k] &= (r + dr >= 0) & (r + dr < rows) & (c + dc >= 0) & (c + dc < cols)
+    size = draw(st.sampled_from([1.0, 0.35]) | st.floats(1e-3, 100.0))
+    return Graph(moves.reshape(rows * cols, kinds), cols, draw(st.integers(-1, rows * cols)), size)
 
 
 def same_as_oracle(found: F32, oracle: F64) -> None:
@@ -122,21 +164,37 @@ def same_as_oracle(found: F32, oracle: F64) -> None:
 # --- the two twins, and the oracle ----------------------------------------------------------------
 
 
+def test_the_move_tables_are_the_contract() -> None:
+    assert cells.MOVES == MOVES and cells.ALL_MOVES == ALL_MOVES
+    for knight, (a1, a2), (b1, b2) in cells.KNIGHTS:  # two ways through the eight, in both orders
+        assert np.add(MOVES[a1], MOVES[a2]).tolist() == np.add(MOVES[b1], MOVES[b2]).tolist() == list(knight)
+        assert (a1, a2) == (b2, b1)
+
+
+@pytest.mark.parametrize("knights", [False, True], ids=["8", "16"])
 @settings(max_examples=60, derandomize=True, deadline=None)
-@given(graph=graphs())
-def test_the_generated_moves_are_symmetric(graph: Graph) -> None:
+@given(data=st.data())
+def test_the_generated_moves_are_symmetric(knights: bool, data: st.DataObject) -> None:
+    graph = data.draw(graphs(knights=knights))
+    kinds = graph.moves.shape[1]
+    assert kinds == (16 if knights else 8)
     rows = len(graph.moves) // graph.width
-    grid = graph.moves.reshape(rows, graph.width, 8)
-    for k, (dr, dc) in enumerate(MOVES):
-        back = MOVES.index((-dr, -dc))
+    grid = graph.moves.reshape(rows, graph.width, kinds)
+    for k, (dr, dc) in enumerate(ALL_MOVES[:kinds]):
+        back = ALL_MOVES.index((-dr, -dc))
         for r, c in np.argwhere(grid[:, :, k]).tolist():
             assert grid[r + dr, c + dc, back]
 
 
-@needs_cellpaths
-@settings(max_examples=300, derandomize=True, deadline=None)
-@given(graph=graphs())
-def test_compiled_and_python_return_the_same_array(graph: Graph) -> None:
+@settings(max_examples=60, derandomize=True, deadline=None)
+@given(graph=graphs(max_side=25))
+def test_with_knights_is_both_ways_through_the_eight(graph: Graph) -> None:
+    got = with_knights(graph.moves, graph.width)
+    assert got.dtype == np.bool_ and got.shape == (len(graph.moves), 16) and got.flags.c_contiguous
+    np.testing.assert_array_equal(got, knights_from(graph.moves, graph.width))
+
+
+def same_twins(graph: Graph) -> None:
     fast = dijkstra_native(graph.moves, graph.width, graph.goal, graph.size)
     ref = dijkstra_python(graph.moves, graph.width, graph.goal, graph.size)
     assert fast.dtype == ref.dtype == np.float32 and fast.shape == ref.shape == (len(graph.moves),)
@@ -144,28 +202,54 @@ def test_compiled_and_python_return_the_same_array(graph: Graph) -> None:
     assert fast.tobytes() == ref.tobytes()
 
 
+@needs_cellpaths
+@pytest.mark.parametrize("knights", [False, True], ids=["8", "16"])
+@settings(max_examples=300, derandomize=True, deadline=None)
+@given(data=st.data())
+def test_compiled_and_python_return_the_same_array(knights: bool, data: st.DataObject) -> None:
+    same_twins(data.draw(graphs(knights=knights)))
+
+
+@needs_cellpaths
+@settings(max_examples=150, derandomize=True, deadline=None)
+@given(graph=any_graphs())
+def test_compiled_and_python_agree_on_any_graph_on_the_grid(graph: Graph) -> None:
+    same_twins(graph)
+
+
 @pytest.mark.parametrize("search", SEARCHES)
+@pytest.mark.parametrize("knights", [False, True], ids=["8", "16"])
 @settings(max_examples=80, derandomize=True, deadline=None)
-@given(graph=graphs())
-def test_distances_are_those_of_bellman_ford(search: Search, graph: Graph) -> None:
+@given(data=st.data())
+def test_distances_are_those_of_bellman_ford(search: Search, knights: bool, data: st.DataObject) -> None:
+    graph = data.draw(graphs(knights=knights))
     found = search(graph.moves, graph.width, graph.goal, graph.size)
     same_as_oracle(found, bellman_ford(graph.moves, graph.width, graph.goal, graph.size))
 
 
 @needs_cellpaths
 def test_compiled_and_python_agree_on_warehouse_sized_grids() -> None:
-    """134 x 123 cells (a 1 000-robot warehouse), 30 % blocked and a few thin walls."""
+    """134 x 123 cells (a 1 000-robot warehouse), 30 % blocked and a few thin walls; over the
+    eight moves and over the sixteen."""
     rng = np.random.default_rng(3)
     rows, cols = 123, 134
     for size in (0.35, 0.5, 1.0 / 3.0):
         free = rng.random((rows, cols)) >= 0.3
         walls = rng.random((2 * rows + 1, 2 * cols + 1)) < 0.03
-        moves = moves_from(free, walls)
-        for goal in rng.choice(np.flatnonzero(free), 4, replace=False).tolist():
-            fast = dijkstra_native(moves, cols, goal, size)
-            assert np.array_equal(fast, dijkstra_python(moves, cols, goal, size))
-            assert np.isfinite(fast).sum() > rows * cols // 2  # most of the floor is reached
-    same_as_oracle(fast, bellman_ford(moves, cols, goal, size))
+        eight = moves_from(free, walls)
+        sixteen = with_knights(eight, cols)
+        reached = []
+        for goal in rng.choice(np.flatnonzero(free), 3, replace=False).tolist():
+            fields = []
+            for moves in (eight, sixteen):
+                fields.append(dijkstra_native(moves, cols, goal, size))
+                assert np.array_equal(fields[-1], dijkstra_python(moves, cols, goal, size))
+            # the knight's moves shorten ways but reach no other cell (each is two of the eight)
+            np.testing.assert_array_equal(np.isfinite(fields[0]), np.isfinite(fields[1]))
+            assert (fields[1] <= fields[0]).all()
+            reached.append(int(np.isfinite(fields[1]).sum()))
+        assert max(reached) > rows * cols // 2  # most of the floor is reached
+        same_as_oracle(fields[1], bellman_ford(sixteen, cols, goal, size))
 
 
 # --- table cases ----------------------------------------------------------------------------------
@@ -198,6 +282,153 @@ def test_no_corner_cutting_and_thin_walls(search: Search) -> None:
     assert got[1] == np.float32(1.0 + math.sqrt(2.0))  # round the wall: an axis step and a diagonal
 
 
+Walls = tuple[tuple[int, int], ...]
+
+
+def drawn(rows: list[str], walls: Walls = ()) -> tuple[Moves, Moves]:
+    """A grid drawn as text ('#' blocked) and thin walls at the given half-grid points (cell
+    (r, c) at (2r + 1, 2c + 1)), as free cells and the half grid of walls."""
+    free = np.array([[ch != "#" for ch in row] for row in rows])
+    half = np.zeros((2 * free.shape[0] + 1, 2 * free.shape[1] + 1), dtype=bool)
+    for point in walls:
+        half[point] = True
+    return free, half
+
+
+def knight_floor(rows: list[str], walls: Walls = ()) -> tuple[Moves, int]:
+    """A grid drawn as text, with thin walls, as its (cells, 16) moves and width."""
+    free, half = drawn(rows, walls)
+    width = free.shape[1]
+    return with_knights(moves_from(free, half), width), width
+
+
+KNIGHT_12 = ALL_MOVES.index((1, 2))  # from (0, 0) to (1, 2) on a 2 x 3 floor: cell 0 to cell 5
+KNIGHT_BACK = ALL_MOVES.index((-1, -2))
+
+
+@pytest.mark.parametrize(
+    ("rows", "walls", "allowed"),
+    [
+        (["...", "..."], (), True),  # both ways: right then down-right, down-right then right
+        (["..#", "..."], (), False),  # the first way cuts the corner of (0, 2)
+        (["...", "#.."], (), False),  # the second way cuts the corner of (1, 0)
+        (["...", "..."], ((1, 2),), False),  # a thin wall between (0, 0) and (0, 1): the first way
+        (["...", "..."], ((3, 4),), False),  # between (1, 1) and (1, 2): the second way
+        (["...", "..."], ((2, 2),), False),  # on the corner between (0, 0) and (1, 1): the second way
+        (["...", "..."], ((2, 4),), False),  # on the corner between (0, 1) and (1, 2): the first way
+        (["...", "..."], ((3, 2),), True),  # between (1, 0) and (1, 1): on neither way
+        (["...", "..."], ((1, 4),), True),  # between (0, 1) and (0, 2): on neither way
+    ],
+)
+def test_a_knights_move_needs_both_its_ways_through_the_eight(rows: list[str], walls: Walls, allowed: bool) -> None:
+    moves, _ = knight_floor(rows, walls)
+    assert moves[0, KNIGHT_12] == moves[5, KNIGHT_BACK] == allowed  # either way round
+    np.testing.assert_array_equal(moves[:, :8], moves_from(*drawn(rows, walls)))  # the eight as they were
+
+
+@pytest.mark.parametrize("knight", range(8, 16))
+def test_a_knights_move_needs_every_other_cell_of_its_box(knight: int) -> None:
+    """On an open 5 x 5 floor every knight's move from the centre is allowed; blocking any of
+    the four other cells of the 2 x 3 box it crosses refuses it (a corner of one of its two
+    ways), and blocking a cell outside the box does not."""
+    dr, dc = ALL_MOVES[knight]
+    centre = (2, 2)
+    moves, _ = knight_floor(["....."] * 5)
+    assert moves[12, 8:].all()
+    box = {(2 + r, 2 + c) for r in range(min(0, dr), max(0, dr) + 1) for c in range(min(0, dc), max(0, dc) + 1)}
+    assert len(box) == 6
+    for cell in [(r, c) for r in range(5) for c in range(5) if (r, c) not in (centre, (2 + dr, 2 + dc))]:
+        rows = ["".join("#" if (r, c) == cell else "." for c in range(5)) for r in range(5)]
+        moves, _ = knight_floor(rows)
+        assert moves[12, knight] == (cell not in box), cell
+
+
+@pytest.mark.parametrize("search", SEARCHES)
+def test_knights_moves_in_the_search(search: Search) -> None:
+    moves, width = knight_floor(["...", "..."])
+    got = search(moves, width, 5, 1.0)
+    assert got[0] == np.float32(math.sqrt(5.0))  # one knight's move, not 1 + sqrt(2)
+    moves, width = knight_floor(["..#", "..."])
+    assert search(moves, width, 5, 1.0)[0] == np.float32(1.0 + math.sqrt(2.0))  # round the corner
+    moves, width = knight_floor(["...", "..."], ((2, 2),))
+    assert search(moves, width, 5, 1.0)[0] == np.float32(1.0 + math.sqrt(2.0))  # by the first way
+    moves, width = knight_floor(["....", "....", "....", "...."])
+    got = search(moves, width, 0, 0.5)
+    assert got[2 * width + 3] == pytest.approx(0.5 * (math.sqrt(5.0) + math.sqrt(2.0)), rel=1e-6)  # knight, diagonal
+    assert got[3 * width + 3] == pytest.approx(0.5 * 3.0 * math.sqrt(2.0), rel=1e-6)  # three diagonals
+    assert got[3 * width + 1] == pytest.approx(0.5 * (math.sqrt(5.0) + 1.0), rel=1e-6)  # knight, a step down
+
+
+@pytest.mark.parametrize("search", SEARCHES)
+@settings(max_examples=40, derandomize=True, deadline=None)
+@given(rows=st.integers(1, 45), cols=st.integers(1, 45), at=st.floats(0.0, 1.0), size=st.floats(0.01, 10.0))
+def test_on_an_open_floor_the_field_is_near_the_straight_line(
+    search: Search, rows: int, cols: int, at: float, size: float
+) -> None:
+    """Over the sixteen moves the field is within 3 % of the straight-line distance (at most
+    1 / cos(atan(1/2) / 2) - 1 = 2.75 %, between an axis and a knight's move), over the eight
+    within 8.3 % (at most sqrt(4 - 2 sqrt(2)) - 1 = 8.24 %); and never below it."""
+    goal = min(int(at * rows * cols), rows * cols - 1)
+    r, c = np.divmod(np.arange(rows * cols), cols)
+    line = size * np.hypot(r - goal // cols, c - goal % cols)
+    eight = moves_from(np.ones((rows, cols), dtype=bool))
+    for moves, bound in ((eight, 1.083), (with_knights(eight, cols), 1.03)):
+        got = search(moves, cols, goal, size).astype(np.float64)
+        assert np.isfinite(got).all()
+        assert (got >= line * (1.0 - 1e-6)).all()
+        assert (got <= line * bound * (1.0 + 1e-6)).all()
+
+
+def test_the_bounds_on_an_open_floor_are_tight() -> None:
+    n = 60
+    eight = moves_from(np.ones((n, n), dtype=bool))
+    r, c = np.divmod(np.arange(1, n * n), n)
+    line = np.hypot(r, c)
+    ratio8 = dijkstra(eight, n, 0, 1.0)[1:] / line
+    ratio16 = dijkstra(with_knights(eight, n), n, 0, 1.0)[1:] / line
+    assert 1.08 < ratio8.max() <= 1.083 and 1.027 < ratio16.max() <= 1.03
+
+
+def a_size_that_tells(root: float, other: float) -> float:
+    """A cell size whose product with ``root`` rounds (float64, then float32) to another float32
+    than its product with ``other``: a step computed with ``other`` would show in the field."""
+    for m in range(1, 100):
+        size = (1.0 + (2 * m + 1) * 2.0**-24) / root  # near a float32 midpoint
+        for _ in range(8):
+            if np.float32(size * root) != np.float32(size * other):
+                return size
+            size = math.nextafter(size, math.inf)
+    raise AssertionError(f"no size tells {root!r} from {other!r}")
+
+
+@pytest.mark.parametrize("n", [1, 2, 5])
+def test_python_and_c_square_roots_are_the_same_correctly_rounded_doubles(n: int) -> None:
+    root = math.sqrt(n)
+    below, above = math.nextafter(root, 0.0), math.nextafter(root, math.inf)
+    # correctly rounded: n lies between the squares of the midpoints to its neighbours, exactly
+    lo, hi = (Fraction(below) + Fraction(root)) / 2, (Fraction(root) + Fraction(above)) / 2
+    assert lo * lo < n < hi * hi
+    assert root == math.sqrt(float(n)) == float(n) ** 0.5
+    libm = ctypes.util.find_library("m")
+    if libm is not None:  # C's sqrt itself (the compiled twin may inline the instruction: below)
+        c_sqrt = ctypes.CDLL(libm).sqrt
+        c_sqrt.restype, c_sqrt.argtypes = ctypes.c_double, [ctypes.c_double]
+        assert c_sqrt(float(n)) == root
+
+
+@pytest.mark.parametrize("search", SEARCHES)
+@pytest.mark.parametrize(("n", "to"), [(1, 1), (2, 4), (5, 5)])  # (0, 0) to (0, 1), (1, 1), (1, 2)
+def test_a_step_costs_size_times_the_square_root_exactly(search: Search, n: int, to: int) -> None:
+    """A step's float64 cost is size * math.sqrt(dr^2 + dc^2) to the bit: for sizes where a
+    square root one double off either way would give another float32."""
+    moves, width = knight_floor(["...", "..."])
+    root = math.sqrt(n)
+    for other in (math.nextafter(root, 0.0), math.nextafter(root, math.inf)):
+        size = a_size_that_tells(root, other)
+        got = search(moves, width, 0, size)[to]
+        assert got == np.float32(size * root) != np.float32(size * other)
+
+
 @pytest.mark.parametrize("search", SEARCHES)
 def test_a_blocked_goal_is_reached_from_nowhere(search: Search) -> None:
     moves, width = floor(["...", ".#.", "..."])
@@ -218,6 +449,7 @@ def test_a_goal_that_is_no_cell_gives_all_inf(search: Search, goal: int) -> None
 @pytest.mark.parametrize("search", SEARCHES)
 def test_empty_grid_numpy_goal_and_a_writable_result(search: Search) -> None:
     assert search(np.zeros((0, 8), dtype=bool), 3, 0, 1.0).shape == (0,)
+    assert search(np.zeros((0, 16), dtype=bool), 3, 0, 1.0).shape == (0,)
     moves, width = floor(["....", "...."])
     got = search(moves, width, np.int64(7), np.float32(0.25))  # type: ignore[arg-type]  # numpy scalars on purpose
     assert np.array_equal(got, dijkstra_python(moves, width, 7, 0.25))  # the steps in float64 all the same
@@ -232,11 +464,25 @@ def bad_moves() -> list[tuple[object, int, float, str]]:
     wrap[2, 0] = True  # from the last column to the right: the next row's first cell, were it allowed
     left = good.copy()
     left[3, 6] = left[3, 2] = True  # from (1, 0): leftwards, and up-left
+    # knight's moves on 4 rows of 5: from the second row and the second column too
+    good16 = with_knights(moves_from(np.ones((4, 5), dtype=bool)), 5)
+    knights = []
+    for cell, knight in ((7, (-2, 1)), (13, (1, 2)), (11, (1, -2)), (17, (2, 1)), (1, (-1, -2)), (18, (-1, 2))):
+        bad = good16.copy()
+        bad[cell, ALL_MOVES.index(knight)] = True
+        knights.append((bad, 5, 1.0, f"moves[{cell}, {ALL_MOVES.index(knight)}] steps off the grid (5 cells wide)"))
+    two = good16.copy()
+    two[11, 11] = two[11, 3] = True  # from (2, 1): a knight's move left and up-left (later), and up (first)
     return [
-        (good.astype(np.uint8), 3, 1.0, "(cells, 8) bool array, not (6, 8) uint8 array"),
-        (good[:, :7], 3, 1.0, "(cells, 8) bool array, not (6, 7) bool array"),
-        (good.ravel(), 3, 1.0, "(cells, 8) bool array, not (48,) bool array"),
-        (good.tolist(), 3, 1.0, "(cells, 8) bool array, not list"),
+        (good.astype(np.uint8), 3, 1.0, "(cells, 8) or (cells, 16) bool array, not (6, 8) uint8 array"),
+        (good[:, :7], 3, 1.0, "(cells, 8) or (cells, 16) bool array, not (6, 7) bool array"),
+        (good.ravel(), 3, 1.0, "(cells, 8) or (cells, 16) bool array, not (48,) bool array"),
+        (good.tolist(), 3, 1.0, "(cells, 8) or (cells, 16) bool array, not list"),
+        (good16.astype(np.uint8), 5, 1.0, "(cells, 8) or (cells, 16) bool array, not (20, 16) uint8 array"),
+        (np.zeros((6, 12), dtype=bool), 3, 1.0, "(cells, 8) or (cells, 16) bool array, not (6, 12) bool array"),
+        (np.zeros((6, 16, 1), dtype=bool), 3, 1.0, "(cells, 8) or (cells, 16) bool array, not (6, 16, 1) bool"),
+        (good16[:, ::-1], 5, 1.0, "moves must be C-contiguous"),
+        (good16, 3, 1.0, "width 3 does not divide the 20 cells"),
         (np.asfortranarray(good), 3, 1.0, "moves must be C-contiguous"),
         (np.repeat(good, 2, axis=0)[::2], 3, 1.0, "moves must be C-contiguous"),
         (good, 0, 1.0, "width 0 does not divide the 6 cells into rows"),
@@ -249,6 +495,8 @@ def bad_moves() -> list[tuple[object, int, float, str]]:
         (up, 3, 1.0, "moves[1, 3] steps off the grid (3 cells wide)"),
         (wrap, 3, 1.0, "moves[2, 0] steps off the grid (3 cells wide)"),
         (left, 3, 1.0, "moves[3, 2] steps off the grid"),
+        *knights,
+        (two, 5, 1.0, "moves[11, 11] steps off the grid (5 cells wide)"),
     ]
 
 
@@ -266,8 +514,21 @@ def test_compiled_search_checks_its_buffer_itself() -> None:
     good = moves_from(np.ones((3, 4), dtype=bool))
     with pytest.raises(ValueError, match="bool buffer"):
         compiled.dijkstra(good.astype(np.uint8), 4, 0, 1.0)
-    with pytest.raises(ValueError, match="bool buffer"):
+    with pytest.raises(ValueError, match=re.escape("moves must be a (cells, 8) or (cells, 16) bool buffer")):
         compiled.dijkstra(good[:, :4].copy(), 4, 0, 1.0)
+    with pytest.raises(ValueError, match="bool buffer"):
+        compiled.dijkstra(np.zeros((12, 12), dtype=bool), 4, 0, 1.0)
+    knights = with_knights(good, 4)
+    with pytest.raises(ValueError, match="bool buffer"):
+        compiled.dijkstra(knights.astype(np.uint8), 4, 0, 1.0)
+    with pytest.raises(ValueError, match="C-contiguous"):
+        compiled.dijkstra(np.asfortranarray(knights), 4, 0, 1.0)
+    reached = np.frombuffer(compiled.dijkstra(knights, 4, 0, 1.0), dtype=np.float32)
+    assert reached[6] == np.float32(math.sqrt(5.0))  # (1, 2): one knight's move
+    off = knights.copy()
+    off[5, ALL_MOVES.index((-2, 1))] = True  # from (1, 1), the second row: two rows up
+    with pytest.raises(ValueError, match=re.escape("moves[5, 14] steps off the grid (4 cells wide)")):
+        compiled.dijkstra(off, 4, 0, 1.0)
     with pytest.raises(ValueError, match="C-contiguous"):
         compiled.dijkstra(np.asfortranarray(good), 4, 0, 1.0)
     with pytest.raises(ValueError, match="width 5 does not divide"):
@@ -278,12 +539,15 @@ def test_compiled_search_checks_its_buffer_itself() -> None:
 
 
 @needs_cellpaths
-def test_both_name_the_same_move_off_the_grid() -> None:
+@pytest.mark.parametrize("knights", [False, True], ids=["8", "16"])
+def test_both_name_the_same_move_off_the_grid(knights: bool) -> None:
     rng = np.random.default_rng(8)
-    for _ in range(40):
-        rows, cols = (int(v) for v in rng.integers(1, 6, 2))
+    for _ in range(200):
+        rows, cols = (int(v) for v in rng.integers(1, 8, 2))
         moves = moves_from(rng.random((rows, cols)) >= 0.2)
-        moves |= rng.random(moves.shape) < 0.1  # some of them off the grid, most likely
+        if knights:
+            moves = with_knights(moves, cols)
+        moves |= rng.random(moves.shape) < rng.choice([0.002, 0.02, 0.1])  # some off the grid, or none
         messages = []
         for search in (dijkstra_python, dijkstra_native):
             try:
@@ -297,14 +561,26 @@ def test_both_name_the_same_move_off_the_grid() -> None:
 # --- the public name, the registry, the caller ----------------------------------------------------
 
 
-def test_dijkstra_takes_the_compiled_twin_when_built(monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("knights", [False, True], ids=["8", "16"])
+def test_dijkstra_takes_the_compiled_twin_when_built(monkeypatch: pytest.MonkeyPatch, knights: bool) -> None:
     moves = moves_from(np.random.default_rng(2).random((20, 30)) >= 0.3)
+    if knights:
+        moves = with_knights(moves, 30)
     ref = dijkstra_python(moves, 30, 45, 0.35)
+    calls: list[int] = []
+
+    def counted(moves: Moves, width: int, goal: int, size: float) -> F32:
+        calls.append(moves.shape[1])
+        return dijkstra_native(moves, width, goal, size)
+
+    monkeypatch.setattr(cells, "dijkstra_native", counted)
     assert np.array_equal(dijkstra(moves, 30, 45, 0.35), ref)
+    assert calls == ([] if cells._native is None else [moves.shape[1]])  # compiled for 8 and 16 moves
     monkeypatch.setattr(cells, "_native", None)
     with pytest.raises(RuntimeError, match="compiled distance field is not available"):
         dijkstra_native(moves, 30, 45, 0.35)
     assert np.array_equal(dijkstra(moves, 30, 45, 0.35), ref)
+    assert len(calls) <= 1
 
 
 def test_the_distance_field_is_a_registered_kernel() -> None:
@@ -318,7 +594,7 @@ def test_cell_graph_distances_treat_blocked_cells_as_walls() -> None:
     standable = np.flatnonzero(graph.standable(BURGER))
     goal = int(standable[len(standable) // 2])
     free = graph.distances(BURGER, goal)
-    assert np.array_equal(free, dijkstra_python(moves, graph.width, goal, graph.size))
+    assert np.array_equal(free, dijkstra_python(with_knights(moves, graph.width), graph.width, goal, graph.size))
     reached = np.flatnonzero(np.isfinite(free) & (free > 0))
     blocked = reached[:: max(1, len(reached) // 5)]
     walled = graph.distances(BURGER, goal, blocked)
@@ -332,4 +608,5 @@ def test_cell_graph_distances_treat_blocked_cells_as_walls() -> None:
         shifted[1:-1, 1:-1] = grid_free.reshape(graph.height, graph.width)
         into = shifted[1 + dr : 1 + dr + graph.height, 1 + dc : 1 + dc + graph.width]
         kept[:, :, k] &= grid_free.reshape(graph.height, graph.width) & into
-    same_as_oracle(walled, bellman_ford(kept.reshape(-1, 8), graph.width, goal, graph.size))
+    kept16 = knights_from(kept.reshape(-1, 8), graph.width)  # and the knight's moves through what is left
+    same_as_oracle(walled, bellman_ford(kept16, graph.width, goal, graph.size))
