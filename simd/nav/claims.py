@@ -169,7 +169,7 @@ class ClaimGrid:
         h.blocked_by = FREE
         while j < n and at[j] <= progress + ahead:
             a, b = int(first[j]), int(first[j + 1])
-            blocker = next((int(owner[cells[k]]) for k in range(a, b) if owner[cells[k]] not in (FREE, slot)), FREE)
+            blocker = next((int(owner[c]) for c in cells[a:b].tolist() if owner[c] not in (FREE, slot)), FREE)
             if blocker != FREE:
                 h.blocked_by = blocker
                 break
@@ -186,6 +186,13 @@ class ClaimGrid:
         if j >= n:
             return claims.length
         return float(at[j - 1]) if j > 0 else 0.0
+
+    def clear_start(self, h: Holder, claims: Claims, reach: float) -> bool:
+        """Whether the first ``reach`` metres of ``claims`` need no cell another robot holds
+        (a way the robot could set off on now)."""
+        end = int(claims.first[int(np.searchsorted(claims.at, reach, side="right"))])
+        owners = self.owner[claims.cells[:end]]
+        return not bool(np.any((owners != FREE) & (owners != h.slot)))
 
     def retract(self, h: Holder, progress: float) -> None:
         """Give back the samples claimed beyond ``progress`` (a robot making way must not

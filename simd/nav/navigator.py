@@ -481,11 +481,11 @@ class Navigator:
         v, w = pursue(x, y, yaw, aim_x, aim_y, room, limits)
         crowd = self._would_crowd(driven, x, y, yaw, v)
         if crowd.any():  # cutting across would touch another's cells: by the way's first point
-            k = np.flatnonzero(crowd)
-            first = np.array([_first_step(ways[j]) for j in k.tolist()])
-            sub = Limits(limits.max_v[k], limits.max_w[k])
-            dist = np.hypot(first[:, 0] - x[k], first[:, 1] - y[k])
-            v[k], w[k] = pursue(x[k], y[k], yaw[k], first[:, 0], first[:, 1], np.minimum(room[k], dist), sub)
+            ks = np.flatnonzero(crowd)
+            first = np.array([_first_step(ways[j]) for j in ks.tolist()])
+            sub = Limits(limits.max_v[ks], limits.max_w[ks])
+            dist = np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks])
+            v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], np.minimum(room[ks], dist), sub)
             v = np.where(self._would_crowd(driven, x, y, yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))

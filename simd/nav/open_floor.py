@@ -120,25 +120,36 @@ class OpenFloor:
         w = self.robots[robot.slot]
         goal = robot.goal
         assert goal is not None
-        points = [] if blocked is None else [blocked]
-        if w.around is not None and w.around_until > robot.now:
-            points.append(w.around)
-        marks = np.concatenate(points) if points else None
+        around = w.around if w.around is not None and w.around_until > robot.now else None
         target, tolerance = (w.refuge, 0.05) if w.refuge is not None else ((goal.x, goal.y), goal.tolerance)
-        path = self._path(robot.model, here, target, tolerance, marks)
+        path = self._path(robot.model, here, target, tolerance, blocked, around, w.holder.radius)
         if path is None:
             return None
         self._follow(w, path)
         return path
 
     def _path(
-        self, model: RobotModel, start: tuple[float, float], goal: tuple[float, float], tolerance: float, marks: F64 | None
+        self,
+        model: RobotModel,
+        start: tuple[float, float],
+        goal: tuple[float, float],
+        tolerance: float,
+        seen: F64 | None,
+        robots: F64 | None = None,
+        radius: float = 0.0,
     ) -> F64 | None:
+        """A smoothed path on the costmap, around the points ``seen`` (its lidar's) and the claim
+        cells (centres) ``robots`` that other robots hold (its square must not reach them)."""
         cm = self.costmap
         cost = cm.costs(model)
-        if marks is not None and len(marks):
+        blocked = []
+        if seen is not None and len(seen):
+            blocked.append(_disc_cells(cm, seen, model.radius + MARGIN_M))
+        if robots is not None and len(robots):
+            blocked.append(_square_cells(cm, robots, radius + self.grid.cell / 2))
+        if blocked:
             cost = cost.copy()
-            cost.reshape(-1)[_disc_cells(cm, marks, model.radius + MARGIN_M)] = np.inf
+            cost.reshape(-1)[np.concatenate(blocked)] = np.inf
         a = _near_free(cm, cost, start, 0.5)
         b = _near_free(cm, cost, goal, max(tolerance, cm.grid.resolution))
         if a is None or b is None:
@@ -224,6 +235,8 @@ class OpenFloor:
         if spot is None:
             return False
         path_cells, target = spot
+        if not self.grid.clear_start(w.holder, self.grid.path_claims(path_cells, w.holder.radius), 0.15):
+            return False  # it could not set off that way (too close to another robot)
         self.grid.retract(w.holder, w.progress)
         w.refuge, w.yield_to, w.yield_until = target, for_robot.slot, now + YIELD_S
         w.waited_since = None
@@ -243,8 +256,8 @@ class OpenFloor:
             return None
         banned = np.zeros(g.width * g.height, dtype=bool)
         banned[avoid] = True
-        owner = g.owner
-        passable = self.standable(robot.model) & ((owner == FREE) | (owner == robot.slot))
+        passable = self.standable(robot.model) & self._clear_of_others(robot.slot, w.holder.radius)
+        passable[start] = True
         parent = {start: start}
         queue = deque([start])
         steps = int(REFUGE_REACH_M / g.cell)
@@ -279,6 +292,19 @@ class OpenFloor:
         target = g.centre(found)
         return _distinct(pts), target
 
+    def _clear_of_others(self, slot: int, radius: float) -> B:
+        """Per cell: whether a robot's square of half-side ``radius`` about the cell's centre
+        touches no cell another robot holds (summed over a window of the grid)."""
+        g = self.grid
+        others = ((g.owner != FREE) & (g.owner != slot)).reshape(g.height, g.width).astype(np.int32)
+        k = max(1, math.ceil(radius / g.cell - 0.5))
+        padded = np.pad(others, k)
+        integral = np.pad(padded.cumsum(0).cumsum(1), ((1, 0), (1, 0)))
+        n = 2 * k + 1
+        window = integral[n:, n:] - integral[:-n, n:] - integral[n:, :-n] + integral[:-n, :-n]
+        clear: B = (window == 0).ravel()
+        return clear
+
     def standable(self, model: RobotModel) -> B:
         """Per claim cell: whether the model can stand at its centre (by the costmap)."""
         s = self._standable.get(model.name)
@@ -308,8 +334,7 @@ class OpenFloor:
         if len(cells) == 0:
             return False
         around = np.array([self.grid.centre(int(c)) for c in cells])
-        marks = around if robot.blocked is None else np.concatenate([robot.blocked, around])
-        path = self._path(robot.model, here, (goal.x, goal.y), goal.tolerance, marks)
+        path = self._path(robot.model, here, (goal.x, goal.y), goal.tolerance, robot.blocked, around, w.holder.radius)
         if path is None:
             return False
         left = max(0.0, _length(w.path) - w.progress)
@@ -330,7 +355,13 @@ class OpenFloor:
         there = here is not None and math.hypot(w.refuge[0] - here[0], w.refuge[1] - here[1]) <= 0.08
         other = self.robots.get(w.yield_to)
         gone = other is None or other.path is None or other.holder.blocked_by != robot.slot
-        if (there and gone and now >= w.yield_until - YIELD_S + 1.0) or now >= w.yield_until:
+        stuck = not there and w.room <= 0.02 and w.holder.blocked_by != FREE
+        if there and not gone and other is not None and now >= w.yield_until - YIELD_S + 1.0:
+            # still in its way (it took another way since): make way again, from here
+            for_robot = self._by_slot.get(w.yield_to)
+            if for_robot is not None and self._make_way(robot, w, for_robot, other, now):
+                return
+        if (there and gone and now >= w.yield_until - YIELD_S + 1.0) or now >= w.yield_until or stuck:
             w.refuge, w.yield_to = None, FREE
             robot.making_way = False
             robot.planned = False  # the navigator plans its goal again
@@ -414,6 +445,25 @@ def _near_free(cm: Costmap, cost: F32, xy: tuple[float, float], within: float) -
     if d2[i] > within * within:
         return None
     return int(rr[i] + r0), int(cc[i] + c0)
+
+
+def _square_cells(cm: Costmap, centres: F64, half: float) -> I64:
+    """The costmap cells (flat) whose centres lie within ``half`` of any of ``centres`` along
+    both axes (where a robot's square would reach a square another robot holds)."""
+    g = cm.grid
+    k = math.ceil(half / g.resolution) + 1
+    offs = np.arange(-k, k + 1)
+    dr, dc = np.meshgrid(offs, offs, indexing="ij")
+    cols = np.floor((centres[:, 0] - g.x0) / g.resolution).astype(np.int64)
+    rows = np.floor((centres[:, 1] - g.y0) / g.resolution).astype(np.int64)
+    rr = rows[:, None] + dr.ravel()[None, :]
+    cc = cols[:, None] + dc.ravel()[None, :]
+    cx = g.x0 + (cc + 0.5) * g.resolution
+    cy = g.y0 + (rr + 0.5) * g.resolution
+    near = (np.abs(cx - centres[:, 0:1]) < half) & (np.abs(cy - centres[:, 1:2]) < half)
+    ok = near & (rr >= 0) & (rr < g.height) & (cc >= 0) & (cc < g.width)
+    flat: I64 = np.unique(rr[ok] * g.width + cc[ok])
+    return flat
 
 
 def _disc_cells(cm: Costmap, points: F64, radius: float) -> I64:
