@@ -55,7 +55,7 @@ import numpy.typing as npt
 from simd.core import native
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
-from simd.nav.costmap import Grid, clearance_field
+from simd.nav.costmap import Costmap, Grid, clearance_field
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -105,6 +105,8 @@ class CellGraph:
     _half: F32 = field(init=False)  # clearance at every centre and midpoint (a grid of size/2)
     _standable: dict[str, B] = field(default_factory=dict, init=False)
     _moves: dict[str, npt.NDArray[np.bool_]] = field(default_factory=dict, init=False)
+    _feet: dict[str, list[tuple[int, ...]]] = field(default_factory=dict, init=False)
+    _sweeps: dict[str, dict[tuple[int, int], tuple[int, ...]]] = field(default_factory=dict, init=False)
 
     def __post_init__(self) -> None:
         x_min, _, y_min, _ = self.world.bounds
@@ -185,6 +187,57 @@ class CellGraph:
             out[:, :, k] = ok
         return out.reshape(h * w, len(MOVES))
 
+    def point(self, index: int, model: RobotModel) -> tuple[float, float]:
+        """Where a robot of ``model`` stands in cell ``index``: its centre."""
+        return self.centre(index)
+
+    def points(self, model: RobotModel) -> F64:
+        """(cells, 2): where a robot of ``model`` stands in each cell."""
+        return self.centres(np.arange(self.count))
+
+    def footprint(self, index: int, model: RobotModel) -> tuple[int, ...]:
+        """The cells a robot of ``model`` covers standing at its point in cell ``index`` (its
+        circle's square, with margins): on a grid map, the cell itself."""
+        feet = self._feet.get(model.name)
+        if feet is None:
+            feet = self._footprints(model)
+            self._feet[model.name] = feet
+        return feet[index]
+
+    def _footprints(self, model: RobotModel) -> list[tuple[int, ...]]:
+        g, r = self.grid, body_radius(model) + TRACKING_M
+        out: list[tuple[int, ...]] = []
+        for (x, y), ok in zip(self.points(model).tolist(), self.standable(model).tolist(), strict=True):
+            if not ok:
+                out.append(())
+                continue
+            c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
+            c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
+            r0 = max(0, math.floor((y - r - g.y0) / g.resolution))
+            r1 = min(g.height - 1, math.floor((y + r - g.y0) / g.resolution))
+            out.append(tuple(row * g.width + col for row in range(r0, r1 + 1) for col in range(c0, c1 + 1)))
+        return out
+
+    def sweep(self, index: int, k: int, model: RobotModel) -> tuple[int, ...]:
+        """Every cell a robot of ``model`` covers stepping from cell ``index`` by move ``k``:
+        both footprints, and on a grid map the side cells of a diagonal; in the open, every
+        cell its square passes over on the straight line between the two points."""
+        cache = self._sweeps.setdefault(model.name, {})
+        found = cache.get((index, k))
+        if found is None:
+            found = self._sweep(index, k, model)
+            cache[(index, k)] = found
+        return found
+
+    def _sweep(self, index: int, k: int, model: RobotModel) -> tuple[int, ...]:
+        n = self.neighbour(index, k)
+        cells = [*self.footprint(index, model), *self.footprint(n, model)]
+        dr, dc = MOVES[k]
+        if dr and dc:
+            w = self.grid.width
+            cells += [index + dc, index + dr * w]
+        return tuple(dict.fromkeys(cells))
+
     def neighbour(self, index: int, k: int) -> int:
         """The cell one move ``k`` away (the caller knows it is on the grid)."""
         dr, dc = MOVES[k]
@@ -199,11 +252,16 @@ class CellGraph:
         moves = self.moves(model)
         if blocked is not None and len(blocked):
             moves = moves.copy()
-            moves[blocked, :] = False
-            for k, (dr, dc) in enumerate(MOVES):  # nor may anybody step into them
-                src = blocked - (dr * self.width + dc)
-                ok = (src >= 0) & (src < self.count)
-                moves[src[ok], k] = False
+            hit = set(blocked.tolist())
+            w, h = self.width, self.height
+            for b in hit:  # no step whose body passes over a blocked cell
+                br, bc = divmod(b, w)
+                for r in range(max(0, br - 2), min(h, br + 3)):
+                    for c in range(max(0, bc - 2), min(w, bc + 3)):
+                        src = r * w + c
+                        for k in np.flatnonzero(moves[src]).tolist():
+                            if not hit.isdisjoint(self.sweep(src, k, model)):
+                                moves[src, k] = False
         return dijkstra(with_knights(moves, self.width), self.width, goal, self.size)
 
 
@@ -348,3 +406,101 @@ def check_on_grid(moves: npt.NDArray[np.bool_], width: int) -> None:
             for k, (dr, dc) in enumerate(ALL_MOVES[:kinds]):
                 if grid[r, c, k] and not (0 <= r + dr < rows and 0 <= c + dc < width):
                     raise ValueError(f"moves[{r * width + c}, {k}] steps off the grid ({width} cells wide)")
+
+
+class FreeCellGraph(CellGraph):
+    """Cells over an open world, whose walls do not follow the cells: a robot stands in a cell
+    wherever in it there is room, the point nearest the cell's centre (so that a gap between
+    two pillars that no cell centre lies in is still a cell to pass), and steps to a neighbour
+    when the straight line between the two points is clear (a diagonal step needs its side
+    cells held, not standable: a pillar beside a diagonal is no obstacle to it)."""
+
+    #: candidate points per cell and side
+    TRIES = 7
+
+    def __init__(self, world: WorldGeometry, size: float, costmap: Costmap) -> None:
+        self.costmap = costmap
+        self._points: dict[str, F64] = {}
+        super().__init__(world, size)
+
+    def _clearance_at(self, xs: F64, ys: F64) -> F32:
+        g = self.costmap.grid
+        cols = np.clip(np.floor((xs - g.x0) / g.resolution).astype(np.int64), 0, g.width - 1)
+        rows = np.clip(np.floor((ys - g.y0) / g.resolution).astype(np.int64), 0, g.height - 1)
+        inside = (xs >= g.x0) & (ys >= g.y0) & (xs < g.x0 + g.width * g.resolution) & (ys < g.y0 + g.height * g.resolution)
+        out: F32 = np.where(inside, self.costmap.clearance[rows, cols], np.float32(0.0)).astype(np.float32)
+        return out
+
+    def points(self, model: RobotModel) -> F64:
+        pts = self._points.get(model.name)
+        if pts is None:
+            need = body_radius(model)
+            centres = self.centres(np.arange(self.count))
+            k = self.TRIES
+            offs = (np.arange(k) - (k - 1) / 2) * (self.size / k)
+            ox, oy = np.meshgrid(offs, offs)
+            ox, oy = ox.ravel(), oy.ravel()
+            order = np.argsort(ox * ox + oy * oy, kind="stable")  # nearest the centre first
+            ox, oy = ox[order], oy[order]
+            xs = centres[:, 0:1] + ox[None, :]
+            ys = centres[:, 1:2] + oy[None, :]
+            ok = self._clearance_at(xs, ys) >= need
+            first = np.argmax(ok, axis=1)
+            has = ok.any(axis=1)
+            rows = np.arange(self.count)
+            pts = np.stack([xs[rows, first], ys[rows, first]], axis=1)
+            pts[~has] = np.nan
+            pts.setflags(write=False)
+            self._points[model.name] = pts
+        return pts
+
+    def point(self, index: int, model: RobotModel) -> tuple[float, float]:
+        p = self.points(model)[index]
+        return float(p[0]), float(p[1])
+
+    def standable(self, model: RobotModel) -> B:
+        s = self._standable.get(model.name)
+        if s is None:
+            s = ~np.isnan(self.points(model)[:, 0])
+            s.setflags(write=False)
+            self._standable[model.name] = s
+        return s
+
+    def _sweep(self, index: int, k: int, model: RobotModel) -> tuple[int, ...]:
+        n = self.neighbour(index, k)
+        (ax, ay), (bx, by) = self.point(index, model), self.point(n, model)
+        g, r = self.grid, body_radius(model) + TRACKING_M
+        cells: dict[int, None] = {}
+        for t in np.linspace(0.0, 1.0, max(2, math.ceil(math.hypot(bx - ax, by - ay) / 0.05) + 1)).tolist():
+            x, y = ax + t * (bx - ax), ay + t * (by - ay)
+            c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
+            c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
+            r0 = max(0, math.floor((y - r - g.y0) / g.resolution))
+            r1 = min(g.height - 1, math.floor((y + r - g.y0) / g.resolution))
+            for row in range(r0, r1 + 1):
+                for col in range(c0, c1 + 1):
+                    cells[row * g.width + col] = None
+        return tuple(cells)
+
+    def _allowed_moves(self, model: RobotModel) -> npt.NDArray[np.bool_]:
+        h, w = self.height, self.width
+        need = body_radius(model)
+        pts = self.points(model)
+        stand = self.standable(model)
+        idx = np.arange(self.count)
+        rows, cols = np.divmod(idx, w)
+        out = np.zeros((self.count, len(MOVES)), dtype=bool)
+        steps = np.linspace(0.0, 1.0, 9)[1:-1]
+        for k, (dr, dc) in enumerate(MOVES):
+            r2, c2 = rows + dr, cols + dc
+            on = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
+            src = idx[on]
+            dst = (r2 * w + c2)[on]
+            ok = stand[src] & stand[dst]
+            a, b = pts[src], pts[dst]
+            for t in steps:
+                x = a[:, 0] + t * (b[:, 0] - a[:, 0])
+                y = a[:, 1] + t * (b[:, 1] - a[:, 1])
+                ok &= np.nan_to_num(self._clearance_at(np.nan_to_num(x), np.nan_to_num(y)), nan=0.0) >= need
+            out[src, k] = ok
+        return out

@@ -16,7 +16,8 @@ import numpy.typing as npt
 
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
-from simd.nav.cells import CellGraph, cell_size_for
+from simd.nav.cells import CellGraph, FreeCellGraph, body_radius, cell_size_for
+from simd.nav.costmap import Costmap
 from simd.nav.traffic import FREE, Mover, Traffic
 
 if TYPE_CHECKING:
@@ -27,19 +28,30 @@ I64 = npt.NDArray[np.int64]
 
 #: commit to the next cell when this close (in cells) to the centre of the last one held
 DECIDE_WITHIN_CELLS = 0.6
-#: cells a robot commits to ahead of the one it stands in
+#: a robot waiting this long (s) for one that does not navigate plans around it ...
+DETOUR_S = 3.0
+#: ... and keeps it on its map this long (s)
+AROUND_S = 20.0
+#: cells a robot commits to ahead of the one it stands in (in the open: further, so that it
+#: can cut straight across them)
 AHEAD = 2
+OPEN_AHEAD = 3
 
 
 class LaneFloor:
     """A grid world's cells, the robots on them, and the way each may drive."""
 
-    def __init__(self, world: WorldGeometry, cell: float) -> None:
-        self.graph = CellGraph(world, cell)
-        self.traffic = Traffic(self.graph, ahead=AHEAD)
+    def __init__(self, world: WorldGeometry, cell: float, costmap: Costmap | None = None) -> None:
+        """On a grid map robots keep to the cell centres (lanes); given the ``costmap`` of an
+        open world, to the points of the cells where they fit (FreeCellGraph), and they cut
+        straight across the cells they hold where that is clear."""
+        self.costmap = costmap
+        self.graph: CellGraph = CellGraph(world, cell) if costmap is None else FreeCellGraph(world, cell, costmap)
+        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD)
 
     def describe(self) -> str:
-        return f"{self.graph.width} x {self.graph.height} cells of {self.graph.size:g} m, in lanes"
+        how = "in lanes" if self.costmap is None else "driven straight across"
+        return f"{self.graph.width} x {self.graph.height} cells of {self.graph.size:g} m, {how}"
 
     def refuses(self, model: RobotModel) -> str | None:
         if self.graph.fits(model):
@@ -135,7 +147,7 @@ class LaneFloor:
                 break
             cells.append(nxt)
             c = nxt
-        points = [here, *(g.centre(k) for k in cells), (robot.goal.x, robot.goal.y)]
+        points = [here, *(g.point(k, robot.model) for k in cells), (robot.goal.x, robot.goal.y)]
         return _straightened(np.array(points))
 
     def stop(self, robot: NavRobot) -> None:
@@ -165,20 +177,40 @@ class LaneFloor:
         for m in sorted(deciding, key=lambda m: m.priority):
             if m.slot not in traffic.decided:  # pushed already this round
                 traffic.decide(m, now)
+        for robot in driven:
+            self._around_still(robot, now)
+
+    def _around_still(self, robot: NavRobot, now: float) -> None:
+        """A robot that has waited DETOUR_S for one that does not navigate (no goal, or its
+        goal ended there) plans around it, for a while: the cells it holds go on its map."""
+        m = self._m(robot)
+        other = self.traffic.movers.get(m.waiting_for) if not m.route else None
+        if other is None or other.dist is not None:
+            m.still_since = None
+            return
+        m.still_since = m.still_since if m.still_since is not None else now
+        if now - m.still_since < DETOUR_S:
+            return
+        m.still_since = None
+        cells = np.array(sorted(other.held), dtype=np.int64)
+        robot.marks.append((self.graph.centres(cells), now + AROUND_S))
+        robot.recoveries += 1
+        robot.planned = False  # the navigator plans again, around it
 
     def way(self, robot: NavRobot, x: float, y: float) -> list[tuple[float, float]]:
-        """Where the robot may drive now: along the centres of the cells it holds ahead, from
+        """Where the robot may drive now: along the points of the cells it holds ahead, from
         the point of that line nearest it, and in its goal's cell on to the goal point itself
-        (when the cells its body needs there are free)."""
+        (when the cells its body needs there are free); in the open, cut straight where clear."""
         traffic = self.traffic
         g = self.graph
         m = self._m(robot)
+        model = robot.model
         way = traffic.way(m)
         pts = [(x, y)]
         if way and m.cell != FREE:
-            pts += _onto([g.centre(m.cell)] + [g.centre(c) for c in way], x, y)
+            pts += _onto([g.point(m.cell, model)] + [g.point(c, model) for c in way], x, y)
         else:
-            pts += [g.centre(c) for c in way]
+            pts += [g.point(c, model) for c in way]
         last = way[-1] if way else m.cell
         robot.held_up_at_goal = False
         if last == m.goal_cell and robot.goal is not None and len(way) == len(m.route):
@@ -186,11 +218,37 @@ class LaneFloor:
             if traffic.hold_free(m, traffic.box(gx, gy, m.radius)):
                 pts.append((gx, gy))
             elif not way:
-                pts.append(g.centre(last))
+                pts.append(g.point(last, model))
                 robot.held_up_at_goal = True
         elif not way and m.cell != FREE:
-            pts.append(g.centre(m.cell))  # settle at the centre of its cell
+            pts.append(g.point(m.cell, model))  # settle where it stands in its cell
+        if self.costmap is not None and len(pts) > 2:
+            pts = self._pulled(m, model, pts)
         return pts
+
+    def _pulled(self, m: Mover, model: RobotModel, pts: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        """The way cut straight to the farthest of its points that the robot reaches on a
+        straight line clear of walls and of cells other robots hold (it holds them as it goes)."""
+        assert self.costmap is not None
+        traffic = self.traffic
+        cm = self.costmap
+        need = body_radius(model)
+        x, y = pts[0]
+        for j in range(len(pts) - 1, 1, -1):
+            tx, ty = pts[j]
+            n = max(2, math.ceil(math.hypot(tx - x, ty - y) / 0.05) + 1)
+            ts = np.linspace(0.0, 1.0, n)
+            xs, ys = x + ts * (tx - x), y + ts * (ty - y)
+            cells = [cm.grid.cell(float(a), float(b)) for a, b in zip(xs, ys, strict=True)]
+            if any(c is None or cm.clearance[c] < need for c in cells[1:]):
+                continue
+            if not any(self._others(m, traffic.box(float(a), float(b), m.radius)) for a, b in zip(xs, ys, strict=True)):
+                return [pts[0], *pts[j:]]
+        return pts
+
+    def _others(self, m: Mover, cells: tuple[int, ...]) -> bool:
+        owner = self.traffic.owner
+        return any(int(owner[c]) not in (FREE, m.slot) for c in cells)
 
     def waiting_for(self, robot: NavRobot) -> int:
         m = self._m(robot)

@@ -89,6 +89,8 @@ DECIDE_WITHIN_CELLS = 0.6
 GUARD_S = 0.1
 
 Floor = LaneFloor | OpenFloor
+import os
+OPEN_FLOOR = os.environ.get("NAV_OPEN") == "claims"
 
 
 @dataclass(frozen=True)
@@ -188,10 +190,13 @@ class Navigator:
     @property
     def floor(self) -> Floor:
         if self._floor is None:
+            size = self.config.cell or cell_size_for(_BURGER)
             if self.config.lanes:
-                self._floor = LaneFloor(self.world, self.config.cell or cell_size_for(_BURGER))
-            else:
+                self._floor = LaneFloor(self.world, size)
+            elif OPEN_FLOOR:
                 self._floor = OpenFloor(self.world, self.costmap)
+            else:
+                self._floor = LaneFloor(self.world, size, self.costmap)
             log.info("navigation: %s", self._floor.describe())
             for robot in self.robots.values():
                 self._floor.add(robot)

@@ -53,6 +53,9 @@ class Mover:
     radius: float
     cell: int = FREE  # the cell its centre is in (or last reached)
     route: list[int] = field(default_factory=list)  # cells committed to, next first
+    #: for each route cell, every cell the step into it needs (its footprint, the side cells
+    #: of a diagonal): all must be the robot's before it drives there
+    needs: list[tuple[int, ...]] = field(default_factory=list)
     held: set[int] = field(default_factory=set)
     box: tuple[int, ...] = ()
     #: the goal's distance field (None: no goal, the robot is an obstacle, never pushed)
@@ -66,6 +69,8 @@ class Mover:
     crowded_by: int = FREE
     #: a cell it stepped out of to let another robot through, and until when it keeps out
     gave_way: tuple[int, float] | None = None
+    #: since when it waits for a robot that does not navigate (lanes.py plans around it)
+    still_since: float | None = None
 
     @property
     def pushable(self) -> bool:
@@ -96,6 +101,7 @@ class Traffic:
         for c in np.flatnonzero(self.pending == m.slot).tolist():
             self.pending[c] = FREE
         m.route.clear()
+        m.needs.clear()
         self.movers.pop(m.slot, None)
 
     def set_goal(
@@ -125,6 +131,7 @@ class Traffic:
         if here is not None:
             if m.route and here == m.route[0]:
                 m.cell = m.route.pop(0)
+                m.needs.pop(0)
             elif m.cell == FREE or (here != m.cell and here not in m.route):
                 m.cell = here  # pushed off its cells, or placed: where it is now
         box = self.box(x, y, m.radius)
@@ -143,14 +150,10 @@ class Traffic:
         self._let_go_unneeded(m)
 
     def needed(self, m: Mover) -> set[int]:
-        """Cells the robot needs now: under it, on its route, and beside its diagonal steps."""
+        """Cells the robot needs now: under it, and those of the steps it committed to."""
         need = set(m.box)
-        prev = m.cell
-        for c in m.route:
-            need.add(c)
-            if prev != FREE:
-                need.update(self._sides(prev, c))
-            prev = c
+        for cells in m.needs:
+            need.update(cells)
         return need
 
     def _let_go_unneeded(self, m: Mover) -> None:
@@ -167,7 +170,7 @@ class Traffic:
         if heir != FREE:  # promised to the robot following: it has it now
             self.pending[c] = FREE
             follower = self.movers.get(heir)
-            if follower is not None and c in follower.route:
+            if follower is not None and any(c in cells for cells in follower.needs):
                 self.owner[c] = heir
                 follower.held.add(c)
 
@@ -175,6 +178,7 @@ class Traffic:
         for c in np.flatnonzero(self.pending == m.slot).tolist():
             self.pending[c] = FREE
         m.route.clear()
+        m.needs.clear()
         m.waiting_for = FREE
         self._let_go_unneeded(m)
 
@@ -194,17 +198,31 @@ class Traffic:
         decide again (the robot being followed out of a cell stopped in it instead)."""
         self.decided.clear()
         for m in self.movers.values():
-            for k, c in enumerate(m.route):
-                if self.owner[c] == m.slot or self.pending[c] != m.slot:
+            for k, cells in enumerate(m.needs):
+                if not self._promise_broken(m, cells):
                     continue
-                holder = self.movers.get(int(self.owner[c]))
-                if holder is not None and (holder.cell == c or c in holder.route):
-                    for d in m.route[k:]:
-                        if self.pending[d] == m.slot:
-                            self.pending[d] = FREE
-                    del m.route[k:]
-                    self._let_go_unneeded(m)
+                for later in m.needs[k:]:
+                    for c in later:
+                        if self.pending[c] == m.slot:
+                            self.pending[c] = FREE
+                del m.route[k:]
+                del m.needs[k:]
+                self._let_go_unneeded(m)
                 break
+
+    def _promise_broken(self, m: Mover, cells: tuple[int, ...]) -> bool:
+        """Whether a cell promised to ``m`` is held by a robot that no longer leaves it."""
+        for c in cells:
+            if self.owner[c] == m.slot or self.pending[c] != m.slot:
+                continue
+            holder = self.movers.get(int(self.owner[c]))
+            if holder is None:
+                continue
+            # it keeps the cell if it stands still on it, or it will need the cell on its way
+            resting = not holder.route and holder.cell != FREE and c in self.graph.footprint(holder.cell, holder.model)
+            if resting or holder.cell == c or any(c in n for n in holder.needs):
+                return True
+        return False
 
     def wants_decision(self, m: Mover, near_end: bool) -> bool:
         """Whether the robot should commit to a further cell now: it has a goal, it is not at
@@ -239,19 +257,22 @@ class Traffic:
         if theirs != [m.cell]:
             return False  # it could go elsewhere (pushing will see to it): no dead end to untangle
         blocked = frozenset({other.cell})
-        for n in self._candidates(m, m.cell):
+        for n, k in self._moves_from(m, m.cell):
             if n in blocked or n in m.route:
                 continue
-            sides = self._sides(m.cell, n)
-            if self._taken(n, m) or any(self._taken(c, m) for c in sides):
+            need = self.graph.sweep(m.cell, k, m.model)
+            if any(self._taken(c, m) for c in need):
                 continue
             gave = m.cell
-            self._commit(m, n, sides)
+            self._commit(m, n, need)
             m.gave_way = (gave, now + GIVE_WAY_S)
             return True
         return False
 
     def _candidates(self, m: Mover, frontier: int) -> list[int]:
+        return [n for n, _ in self._moves_from(m, frontier)]
+
+    def _moves_from(self, m: Mover, frontier: int) -> list[tuple[int, int]]:
         """The neighbours of ``frontier`` the robot may step to, best first: nearest its goal
         by the distance field, then by straight line (so ways look straight in the open)."""
         dist = m.dist
@@ -268,7 +289,7 @@ class Traffic:
                     cx, cy = g.centre(n)
                     found.append((d, math.hypot(cx - gx, cy - gy), k, n))
         found.sort()
-        return [n for *_, n in found]
+        return [(n, k) for _, _, k, n in found]
 
     def _pibt(self, m: Mover, rank: tuple[float, int], forbid: frozenset[int], depth: int) -> bool:
         frontier = m.route[-1] if m.route else m.cell
@@ -277,59 +298,68 @@ class Traffic:
         here = float(m.dist[frontier])
         m.waiting_for = FREE
         given = m.gave_way[0] if m.gave_way is not None else FREE
-        for n in self._candidates(m, frontier):
-            if n in forbid or n == m.cell or n in m.route or n == given:
+        leave = frozenset(self.graph.footprint(frontier, m.model))
+        for n, k in self._moves_from(m, frontier):
+            if n == m.cell or n in m.route or n == given:
                 continue  # (never back over its own route, nor into a cell it gave way from)
-            if float(m.dist[n]) >= here and frontier not in forbid and depth == 0:
-                break  # staying is at least as good as anything left (and nobody needs its cell)
-            sides = self._sides(frontier, n)
-            if any(self._taken(s, m) for s in sides):
+            if float(m.dist[n]) >= here and not (leave & forbid) and depth == 0:
+                break  # staying is at least as good as anything left (and nobody needs its cells)
+            need = self.graph.sweep(frontier, k, m.model)
+            if any(c in forbid for c in self.graph.footprint(n, m.model)):
+                continue  # where a robot pushing it must go, or stands
+            if any(self.pending[c] not in (FREE, m.slot) for c in need):
                 continue
-            if self.pending[n] not in (FREE, m.slot):
-                continue
-            o = int(self.owner[n])
-            if o in (FREE, m.slot):
-                self._commit(m, n, sides)
+            owners = {int(self.owner[c]) for c in need} - {FREE, m.slot}
+            if not owners:
+                self._commit(m, n, need)
                 return True
-            other = self.movers.get(o)
-            if other is None:
+            others = [self.movers.get(o) for o in owners]
+            if any(o is None for o in others):
                 continue
-            if other.route and n not in other.route and n not in (other.cell,):
-                # it is on its way out of n: follow it in
-                self._commit(m, n, sides, follow=True)
+            movers = [o for o in others if o is not None]
+            if len(movers) == 1 and movers[0].route and not any(c in movers[0].route for c in need):
+                self._commit(m, n, need)  # it is on its way out of there: follow it in
                 return True
-            if depth < MAX_PUSH_DEPTH and other.pushable and other.slot not in self.decided and other.priority > rank:
-                self.decided.add(other.slot)
-                if self._pibt(other, rank, forbid | {n, frontier, *sides}, depth + 1):
-                    self._commit(m, n, sides, follow=True)
+            pushable = all(
+                o.pushable and o.slot not in self.decided and o.priority > rank for o in movers
+            )
+            if depth < MAX_PUSH_DEPTH and pushable:
+                pushed = True
+                for o in movers:
+                    self.decided.add(o.slot)
+                    pushed = self._pibt(o, rank, forbid | leave | set(need), depth + 1) and pushed
+                if pushed:
+                    self._commit(m, n, need)
                     return True
             if m.waiting_for == FREE:
-                m.waiting_for = o
+                m.waiting_for = movers[0].slot
         return False
 
     def _taken(self, c: int, m: Mover) -> bool:
         o, p = int(self.owner[c]), int(self.pending[c])
         return (o != FREE and o != m.slot) or (p != FREE and p != m.slot)
 
-    def _commit(self, m: Mover, n: int, sides: tuple[int, ...], follow: bool = False) -> None:
+    def _commit(self, m: Mover, n: int, need: tuple[int, ...]) -> None:
+        """The robot will step into ``n``: it holds the cells of ``need`` that are free, and
+        the others (robots leaving them) are promised to it."""
         m.route.append(n)
+        m.needs.append(need)
         m.waiting_for = FREE
-        for s in sides:
-            self.owner[s] = m.slot
-            m.held.add(s)
-        if self.owner[n] in (FREE, m.slot):
-            self.owner[n] = m.slot
-            m.held.add(n)
-        else:  # another robot is leaving it: promised to this one
-            self.pending[n] = m.slot
+        for c in need:
+            if self.owner[c] in (FREE, m.slot):
+                self.owner[c] = m.slot
+                m.held.add(c)
+            else:
+                self.pending[c] = m.slot
 
     # -- driving ---------------------------------------------------------------------------------
 
     def way(self, m: Mover) -> list[int]:
-        """The route cells the robot holds, in order: it may drive up to the last one."""
+        """The route cells whose steps the robot holds whole, in order: it may drive to the
+        last one."""
         out = []
-        for c in m.route:
-            if self.owner[c] != m.slot:
+        for c, cells in zip(m.route, m.needs, strict=True):
+            if any(self.owner[k] != m.slot for k in cells):
                 break
             out.append(c)
         return out
