@@ -35,7 +35,9 @@ AROUND_S = 20.0
 #: cells a robot commits to ahead of the one it stands in (in the open: further, so that it
 #: can cut straight across them)
 AHEAD = 2
-OPEN_AHEAD = 3
+import os
+OPEN_AHEAD = int(os.environ.get("NAV_AHEAD", "3"))
+FOLLOW = os.environ.get("NAV_FOLLOW", "1") == "1"
 
 
 class LaneFloor:
@@ -46,8 +48,9 @@ class LaneFloor:
         open world, to the points of the cells where they fit (FreeCellGraph), and they cut
         straight across the cells they hold where that is clear."""
         self.costmap = costmap
-        self.graph: CellGraph = CellGraph(world, cell) if costmap is None else FreeCellGraph(world, cell, costmap)
-        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD)
+        free = costmap is not None and os.environ.get("NAV_FREE", "1") == "1"
+        self.graph: CellGraph = FreeCellGraph(world, cell, costmap) if free and costmap is not None else CellGraph(world, cell)
+        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD, follow=costmap is None or FOLLOW)
 
     def describe(self) -> str:
         how = "in lanes" if self.costmap is None else "driven straight across"

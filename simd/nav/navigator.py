@@ -87,6 +87,8 @@ PATIENCE_S = 120.0
 DECIDE_WITHIN_CELLS = 0.6
 #: a step in which the robot's body would enter a cell another robot holds is not taken
 GUARD_S = 0.1
+#: nor one that brings two robots' circumscribed circles closer than this (m) to each other
+GUARD_MARGIN_M = 0.02
 
 Floor = LaneFloor | OpenFloor
 import os
@@ -492,6 +494,7 @@ class Navigator:
             dist = np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks])
             v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], np.minimum(room[ks], dist), sub)
             v = np.where(self._would_crowd(driven, x, y, yaw, v), 0.0, v)
+        v = np.where(self._too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))
             lidar_stops = lidar_room[k] <= 0.01 and room[k] < 0.02 and lidar[k] < LOOK_AHEAD_M
@@ -518,6 +521,40 @@ class Navigator:
         out = np.zeros(len(driven), dtype=bool)
         for k in np.flatnonzero(ahead > 0).tolist():
             out[k] = floor.intrudes(driven[k], float(nx[k]), float(ny[k]))
+        return out
+
+    def _too_close(
+        self, driven: list[NavRobot], rows: I64, table: RobotTable, x: F64, y: F64, yaw: F64, v: F64
+    ) -> npt.NDArray[np.bool_]:
+        """Whether each robot, GUARD_S ahead at its speed, would come closer to another robot
+        than their two circles with margins allow: the last guard, on the true poses, whatever
+        the floor's cells say (a robot that strayed, one pushed, one driven by teleop)."""
+        out = np.zeros(len(driven), dtype=bool)
+        moving = np.flatnonzero(v > 0)
+        if len(moving) == 0 or len(table.x) < 2:
+            return out
+        ax, ay = table.x, table.y
+        reach = 2 * (float(np.max(table.outline[:, :, 0] ** 2 + table.outline[:, :, 1] ** 2)) ** 0.5) + 2 * GUARD_MARGIN_M
+        keys = np.floor(ax / reach).astype(np.int64) * 1_000_003 + np.floor(ay / reach).astype(np.int64)
+        buckets: dict[int, list[int]] = {}
+        for i, key in enumerate(keys.tolist()):
+            buckets.setdefault(key, []).append(i)
+        step = v * GUARD_S
+        for k in moving.tolist():
+            i = int(rows[k])
+            nx, ny = x[k] + step[k] * math.cos(yaw[k]), y[k] + step[k] * math.sin(yaw[k])
+            bx, by = math.floor(x[k] / reach), math.floor(y[k] / reach)
+            r_me = driven[k].model.radius + GUARD_MARGIN_M
+            for dx in (-1, 0, 1):
+                for dy in (-1, 0, 1):
+                    for j in buckets.get((bx + dx) * 1_000_003 + (by + dy), ()):
+                        if j == i:
+                            continue
+                        need = r_me + float(np.hypot(*table.outline[j].T).max()) + GUARD_MARGIN_M
+                        now_d = math.hypot(ax[j] - x[k], ay[j] - y[k])
+                        next_d = math.hypot(ax[j] - nx, ay[j] - ny)
+                        if next_d < need and next_d < now_d:
+                            out[k] = True
         return out
 
     def _mark_seen(self, robot: NavRobot, now: float) -> None:

@@ -80,9 +80,11 @@ class Mover:
 class Traffic:
     """The cells of one world and the robots on them (see the module docstring)."""
 
-    def __init__(self, graph: CellGraph, ahead: int = AHEAD) -> None:
+    def __init__(self, graph: CellGraph, ahead: int = AHEAD, follow: bool = True) -> None:
         self.graph = graph
         self.ahead = ahead  # cells a robot commits to ahead of its own
+        #: a robot may commit to cells a robot leaving them still holds (promised to it)
+        self.follow = follow
         self.owner = np.full(graph.count, FREE, dtype=np.int64)
         self.pending = np.full(graph.count, FREE, dtype=np.int64)
         self.movers: dict[int, Mover] = {}
@@ -129,10 +131,12 @@ class Traffic:
         g = self.graph
         here = g.index(x, y)
         if here is not None:
-            if m.route and here == m.route[0]:
-                m.cell = m.route.pop(0)
-                m.needs.pop(0)
-            elif m.cell == FREE or (here != m.cell and here not in m.route):
+            if here in m.route:  # reached the next cell of its route (or one further: cut across)
+                k = m.route.index(here)
+                m.cell = here
+                del m.route[: k + 1]
+                del m.needs[: k + 1]
+            elif m.cell == FREE or here != m.cell:
                 m.cell = here  # pushed off its cells, or placed: where it is now
         box = self.box(x, y, m.radius)
         owner = self.owner
@@ -211,7 +215,8 @@ class Traffic:
                 break
 
     def _promise_broken(self, m: Mover, cells: tuple[int, ...]) -> bool:
-        """Whether a cell promised to ``m`` is held by a robot that no longer leaves it."""
+        """Whether a cell promised to ``m`` is held by a robot that no longer leaves it, or
+        that (through others) waits for ``m`` itself."""
         for c in cells:
             if self.owner[c] == m.slot or self.pending[c] != m.slot:
                 continue
@@ -220,7 +225,7 @@ class Traffic:
                 continue
             # it keeps the cell if it stands still on it, or it will need the cell on its way
             resting = not holder.route and holder.cell != FREE and c in self.graph.footprint(holder.cell, holder.model)
-            if resting or holder.cell == c or any(c in n for n in holder.needs):
+            if resting or holder.cell == c or any(c in n for n in holder.needs) or self._follows(holder, m.slot):
                 return True
         return False
 
@@ -317,7 +322,8 @@ class Traffic:
             if any(o is None for o in others):
                 continue
             movers = [o for o in others if o is not None]
-            if len(movers) == 1 and movers[0].route and not any(c in movers[0].route for c in need):
+            leaving = len(movers) == 1 and movers[0].route and not any(c in movers[0].route for c in need)
+            if self.follow and leaving and not self._follows(movers[0], m.slot):
                 self._commit(m, n, need)  # it is on its way out of there: follow it in
                 return True
             pushable = all(
@@ -329,11 +335,42 @@ class Traffic:
                     self.decided.add(o.slot)
                     pushed = self._pibt(o, rank, forbid | leave | set(need), depth + 1) and pushed
                 if pushed:
-                    self._commit(m, n, need)
-                    return True
+                    if self.follow:
+                        self._commit(m, n, need)
+                        return True
+                    m.waiting_for = movers[0].slot
+                    return False  # it takes the cells once they are free
             if m.waiting_for == FREE:
                 m.waiting_for = movers[0].slot
         return False
+
+    def _ahead_of(self, m: Mover) -> set[int]:
+        """The robots ``m`` follows: those holding cells promised to it."""
+        out = set()
+        for cells in m.needs:
+            for c in cells:
+                if self.pending[c] == m.slot and self.owner[c] not in (FREE, m.slot):
+                    out.add(int(self.owner[c]))
+        return out
+
+    def _follows(self, m: Mover, slot: int, depth: int = 12) -> bool:
+        """Whether ``m`` waits, through a chain of robots each following the next out of its
+        cells, for robot ``slot`` (then ``slot`` following ``m`` would close a circle in which
+        everybody waits for the one ahead to leave first)."""
+        seen, frontier = {m.slot}, [m]
+        for _ in range(depth):
+            nxt = []
+            for x in frontier:
+                for o in self._ahead_of(x):
+                    if o == slot:
+                        return True
+                    if o not in seen and (mo := self.movers.get(o)) is not None:
+                        seen.add(o)
+                        nxt.append(mo)
+            if not nxt:
+                return False
+            frontier = nxt
+        return True  # too long a chain to tell: do not add to it
 
     def _taken(self, c: int, m: Mover) -> bool:
         o, p = int(self.owner[c]), int(self.pending[c])
