@@ -55,7 +55,7 @@ import numpy.typing as npt
 from simd.core import native
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
-from simd.nav.costmap import Costmap, Grid, clearance_field
+from simd.nav.costmap import Grid, clearance_field
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -101,20 +101,43 @@ class CellGraph:
 
     world: WorldGeometry
     size: float
+    align: bool = False
     grid: Grid = field(init=False)
     _half: F32 = field(init=False)  # clearance at every centre and midpoint (a grid of size/2)
     _standable: dict[str, B] = field(default_factory=dict, init=False)
     _moves: dict[str, npt.NDArray[np.bool_]] = field(default_factory=dict, init=False)
-    _feet: dict[str, list[tuple[int, ...]]] = field(default_factory=dict, init=False)
-    _sweeps: dict[str, dict[tuple[int, int], tuple[int, ...]]] = field(default_factory=dict, init=False)
+    _inside: npt.NDArray[np.bool_] | None = field(default=None, init=False)
+
+    #: with ``align``, origins tried per axis (the one that lets most cell centres be stood on is taken)
+    SHIFTS = 7
 
     def __post_init__(self) -> None:
-        x_min, _, y_min, _ = self.world.bounds
         self.grid = Grid.covering(self.world, self.size)
-        g = self.grid
-        half = Grid(x_min - self.size / 4, y_min - self.size / 4, self.size / 2, 2 * g.width + 1, 2 * g.height + 1)
-        reach = max(self.size, 1.0)
-        self._half = clearance_field(self.world, half, reach)
+        if self.align:
+            self.grid = self._aligned()
+        self._half = clearance_field(self.world, _half_grid(self.grid), max(self.size, 1.0))
+
+    def _aligned(self) -> Grid:
+        """The cells laid so that the most of the floor around the world's default spawn is
+        connected (an open world's pillars and walls do not follow its bounds' corner: a grid
+        shifted by part of a cell often lets far more cell centres be stood on, and a passage
+        one robot wide be passed). A grid map's cells are its own, never shifted."""
+        x_min, x_max, y_min, y_max = self.world.bounds
+        size = self.size
+        need = min(body_radius(m) for m in _models())
+        spawn = self.world.default_spawn
+        best, best_score = self.grid, (-1, -1)
+        for sx in range(self.SHIFTS):
+            for sy in range(self.SHIFTS):
+                x0 = x_min - sx * size / self.SHIFTS
+                y0 = y_min - sy * size / self.SHIFTS
+                grid = Grid(x0, y0, size, max(1, math.ceil((x_max - x0) / size - 1e-9)),
+                            max(1, math.ceil((y_max - y0) / size - 1e-9)))  # fmt: skip
+                stand, across, up = _axis_steps(self.world, grid, need)
+                score = (_component(stand, across, up, grid.cell(spawn[0], spawn[1])), int(stand.sum()))
+                if score > best_score:
+                    best, best_score = grid, score
+        return best
 
     @property
     def width(self) -> int:
@@ -187,56 +210,26 @@ class CellGraph:
             out[:, :, k] = ok
         return out.reshape(h * w, len(MOVES))
 
-    def point(self, index: int, model: RobotModel) -> tuple[float, float]:
-        """Where a robot of ``model`` stands in cell ``index``: its centre."""
-        return self.centre(index)
+    @property
+    def inside(self) -> npt.NDArray[np.bool_]:
+        """(cells, 8): whether each move stays on the grid (a way back onto the map's steps
+        for a robot that stands off them)."""
+        if self._inside is None:
+            rows, cols = np.divmod(np.arange(self.count), self.width)
+            self._inside = np.stack(
+                [(rows + dr >= 0) & (rows + dr < self.height) & (cols + dc >= 0) & (cols + dc < self.width)
+                 for dr, dc in MOVES], axis=1)  # fmt: skip
+        return self._inside
 
-    def points(self, model: RobotModel) -> F64:
-        """(cells, 2): where a robot of ``model`` stands in each cell."""
-        return self.centres(np.arange(self.count))
-
-    def footprint(self, index: int, model: RobotModel) -> tuple[int, ...]:
-        """The cells a robot of ``model`` covers standing at its point in cell ``index`` (its
-        circle's square, with margins): on a grid map, the cell itself."""
-        feet = self._feet.get(model.name)
-        if feet is None:
-            feet = self._footprints(model)
-            self._feet[model.name] = feet
-        return feet[index]
-
-    def _footprints(self, model: RobotModel) -> list[tuple[int, ...]]:
-        g, r = self.grid, body_radius(model) + TRACKING_M
-        out: list[tuple[int, ...]] = []
-        for (x, y), ok in zip(self.points(model).tolist(), self.standable(model).tolist(), strict=True):
-            if not ok:
-                out.append(())
-                continue
-            c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
-            c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
-            r0 = max(0, math.floor((y - r - g.y0) / g.resolution))
-            r1 = min(g.height - 1, math.floor((y + r - g.y0) / g.resolution))
-            out.append(tuple(row * g.width + col for row in range(r0, r1 + 1) for col in range(c0, c1 + 1)))
-        return out
-
-    def sweep(self, index: int, k: int, model: RobotModel) -> tuple[int, ...]:
-        """Every cell a robot of ``model`` covers stepping from cell ``index`` by move ``k``:
-        both footprints, and on a grid map the side cells of a diagonal; in the open, every
-        cell its square passes over on the straight line between the two points."""
-        cache = self._sweeps.setdefault(model.name, {})
-        found = cache.get((index, k))
-        if found is None:
-            found = self._sweep(index, k, model)
-            cache[(index, k)] = found
-        return found
-
-    def _sweep(self, index: int, k: int, model: RobotModel) -> tuple[int, ...]:
+    def sweep(self, index: int, k: int) -> tuple[int, ...]:
+        """Every cell a robot covers stepping from cell ``index`` by move ``k``: the two cells,
+        and the two side cells of a diagonal (it passes their corner)."""
         n = self.neighbour(index, k)
-        cells = [*self.footprint(index, model), *self.footprint(n, model)]
         dr, dc = MOVES[k]
         if dr and dc:
             w = self.grid.width
-            cells += [index + dc, index + dr * w]
-        return tuple(dict.fromkeys(cells))
+            return (index, n, index + dc, index + dr * w)
+        return (index, n)
 
     def neighbour(self, index: int, k: int) -> int:
         """The cell one move ``k`` away (the caller knows it is on the grid)."""
@@ -260,7 +253,7 @@ class CellGraph:
                     for c in range(max(0, bc - 2), min(w, bc + 3)):
                         src = r * w + c
                         for k in np.flatnonzero(moves[src]).tolist():
-                            if not hit.isdisjoint(self.sweep(src, k, model)):
+                            if not hit.isdisjoint(self.sweep(src, k)):
                                 moves[src, k] = False
         return dijkstra(with_knights(moves, self.width), self.width, goal, self.size)
 
@@ -408,99 +401,44 @@ def check_on_grid(moves: npt.NDArray[np.bool_], width: int) -> None:
                     raise ValueError(f"moves[{r * width + c}, {k}] steps off the grid ({width} cells wide)")
 
 
-class FreeCellGraph(CellGraph):
-    """Cells over an open world, whose walls do not follow the cells: a robot stands in a cell
-    wherever in it there is room, the point nearest the cell's centre (so that a gap between
-    two pillars that no cell centre lies in is still a cell to pass), and steps to a neighbour
-    when the straight line between the two points is clear (a diagonal step needs its side
-    cells held, not standable: a pillar beside a diagonal is no obstacle to it)."""
+def _half_grid(grid: Grid) -> Grid:
+    """The grid of every cell centre and every midpoint between two neighbours' centres."""
+    s = grid.resolution
+    return Grid(grid.x0 - s / 4, grid.y0 - s / 4, s / 2, 2 * grid.width + 1, 2 * grid.height + 1)
 
-    #: candidate points per cell and side
-    TRIES = 7
 
-    def __init__(self, world: WorldGeometry, size: float, costmap: Costmap) -> None:
-        self.costmap = costmap
-        self._points: dict[str, F64] = {}
-        super().__init__(world, size)
+def _axis_steps(world: WorldGeometry, grid: Grid, need: float) -> tuple[B, B, B]:
+    """Where a circle of radius ``need`` stands (per cell), and may step right and up
+    (per cell: to the neighbour at col + 1 / row + 1), as (h, w) arrays."""
+    half = clearance_field(world, _half_grid(grid), need + 0.01)
+    h, w = grid.height, grid.width
+    stand = half[1::2, 1::2] >= need
+    across = np.zeros((h, w), dtype=bool)
+    across[:, :-1] = stand[:, :-1] & stand[:, 1:] & (half[1::2, 2:-1:2] >= need)
+    up = np.zeros((h, w), dtype=bool)
+    up[:-1, :] = stand[:-1, :] & stand[1:, :] & (half[2:-1:2, 1::2] >= need)
+    return stand, across, up
 
-    def _clearance_at(self, xs: F64, ys: F64) -> F32:
-        g = self.costmap.grid
-        cols = np.clip(np.floor((xs - g.x0) / g.resolution).astype(np.int64), 0, g.width - 1)
-        rows = np.clip(np.floor((ys - g.y0) / g.resolution).astype(np.int64), 0, g.height - 1)
-        inside = (xs >= g.x0) & (ys >= g.y0) & (xs < g.x0 + g.width * g.resolution) & (ys < g.y0 + g.height * g.resolution)
-        out: F32 = np.where(inside, self.costmap.clearance[rows, cols], np.float32(0.0)).astype(np.float32)
-        return out
 
-    def points(self, model: RobotModel) -> F64:
-        pts = self._points.get(model.name)
-        if pts is None:
-            need = body_radius(model)
-            centres = self.centres(np.arange(self.count))
-            k = self.TRIES
-            offs = (np.arange(k) - (k - 1) / 2) * (self.size / k)
-            ox, oy = np.meshgrid(offs, offs)
-            ox, oy = ox.ravel(), oy.ravel()
-            order = np.argsort(ox * ox + oy * oy, kind="stable")  # nearest the centre first
-            ox, oy = ox[order], oy[order]
-            xs = centres[:, 0:1] + ox[None, :]
-            ys = centres[:, 1:2] + oy[None, :]
-            ok = self._clearance_at(xs, ys) >= need
-            first = np.argmax(ok, axis=1)
-            has = ok.any(axis=1)
-            rows = np.arange(self.count)
-            pts = np.stack([xs[rows, first], ys[rows, first]], axis=1)
-            pts[~has] = np.nan
-            pts.setflags(write=False)
-            self._points[model.name] = pts
-        return pts
+def _component(stand: B, across: B, up: B, start: tuple[int, int] | None) -> int:
+    """How many cells the axis steps connect to ``start`` (0 when it cannot be stood on)."""
+    if start is None or not stand[start]:
+        return 0
+    h, w = stand.shape
+    seen = np.zeros_like(stand)
+    seen[start] = True
+    todo = [start]
+    while todo:
+        r, c = todo.pop()
+        for rr, cc, ok in ((r, c + 1, c + 1 < w and across[r, c]), (r, c - 1, c > 0 and across[r, c - 1]),
+                           (r + 1, c, r + 1 < h and up[r, c]), (r - 1, c, r > 0 and up[r - 1, c])):  # fmt: skip
+            if ok and not seen[rr, cc]:
+                seen[rr, cc] = True
+                todo.append((rr, cc))
+    return int(seen.sum())
 
-    def point(self, index: int, model: RobotModel) -> tuple[float, float]:
-        p = self.points(model)[index]
-        return float(p[0]), float(p[1])
 
-    def standable(self, model: RobotModel) -> B:
-        s = self._standable.get(model.name)
-        if s is None:
-            s = ~np.isnan(self.points(model)[:, 0])
-            s.setflags(write=False)
-            self._standable[model.name] = s
-        return s
+def _models() -> list[RobotModel]:
+    from simd.core.models import MODELS
 
-    def _sweep(self, index: int, k: int, model: RobotModel) -> tuple[int, ...]:
-        n = self.neighbour(index, k)
-        (ax, ay), (bx, by) = self.point(index, model), self.point(n, model)
-        g, r = self.grid, body_radius(model) + TRACKING_M
-        cells: dict[int, None] = {}
-        for t in np.linspace(0.0, 1.0, max(2, math.ceil(math.hypot(bx - ax, by - ay) / 0.05) + 1)).tolist():
-            x, y = ax + t * (bx - ax), ay + t * (by - ay)
-            c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
-            c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
-            r0 = max(0, math.floor((y - r - g.y0) / g.resolution))
-            r1 = min(g.height - 1, math.floor((y + r - g.y0) / g.resolution))
-            for row in range(r0, r1 + 1):
-                for col in range(c0, c1 + 1):
-                    cells[row * g.width + col] = None
-        return tuple(cells)
-
-    def _allowed_moves(self, model: RobotModel) -> npt.NDArray[np.bool_]:
-        h, w = self.height, self.width
-        need = body_radius(model)
-        pts = self.points(model)
-        stand = self.standable(model)
-        idx = np.arange(self.count)
-        rows, cols = np.divmod(idx, w)
-        out = np.zeros((self.count, len(MOVES)), dtype=bool)
-        steps = np.linspace(0.0, 1.0, 9)[1:-1]
-        for k, (dr, dc) in enumerate(MOVES):
-            r2, c2 = rows + dr, cols + dc
-            on = (r2 >= 0) & (r2 < h) & (c2 >= 0) & (c2 < w)
-            src = idx[on]
-            dst = (r2 * w + c2)[on]
-            ok = stand[src] & stand[dst]
-            a, b = pts[src], pts[dst]
-            for t in steps:
-                x = a[:, 0] + t * (b[:, 0] - a[:, 0])
-                y = a[:, 1] + t * (b[:, 1] - a[:, 1])
-                ok &= np.nan_to_num(self._clearance_at(np.nan_to_num(x), np.nan_to_num(y)), nan=0.0) >= need
-            out[src, k] = ok
-        return out
+    return list(MODELS.values())

@@ -9,7 +9,7 @@ ten thousand zenoh messages a second each way), and it runs in tick order, so a 
 Every tick it re-applies each navigating robot's command (an idle teleop's zeros never stop a
 robot on its way); every ``control_every`` ticks (10 Hz) it does the work:
 
-1. every robot holds the floor under it (its *floor*: lanes.py on a grid map, open_floor.py
+1. every robot holds the floor under it (its *floor*: floor.py on a grid map, open_floor.py
    elsewhere), goal or not;
 2. the scans since the last step give each robot's room ahead (lidar_guard.py): the first
    thing the map and the fleet do not explain stops it, and if that lasts, it marks what it
@@ -51,10 +51,9 @@ from simd.core.snapshot import TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import cell_size_for
 from simd.nav.costmap import Costmap, Grid
+from simd.nav.floor import Floor
 from simd.nav.follow import LOOKAHEAD_M, Limits, along, pursue, turn_to
-from simd.nav.lanes import LaneFloor
 from simd.nav.lidar_guard import LOOK_AHEAD_M, LidarGuard
-from simd.nav.open_floor import OpenFloor
 from simd.nav.report import NavEvents, goal_pose, path_message, pose, summary_row
 from simd.nav.traffic import FREE
 
@@ -87,12 +86,10 @@ PATIENCE_S = 120.0
 DECIDE_WITHIN_CELLS = 0.6
 #: a step in which the robot's body would enter a cell another robot holds is not taken
 GUARD_S = 0.1
+#: the deceleration the guard counts on (the wheels manage 1 m/s^2) and its sampling step (m)
+GUARD_DECEL, GUARD_STEP_M = 0.8, 0.02
 #: nor one that brings two robots' circumscribed circles closer than this (m) to each other
 GUARD_MARGIN_M = 0.02
-
-Floor = LaneFloor | OpenFloor
-import os
-OPEN_FLOOR = os.environ.get("NAV_OPEN") == "claims"
 
 
 @dataclass(frozen=True)
@@ -138,8 +135,6 @@ class NavRobot:
     feedback: NavigationFeedback | None = None
     ended: str = ""  # how its goal ended, for the next fleet summary
     held_up_at_goal: bool = False  # (lanes) in its goal's cell, the goal point's cells held by others
-    making_way: bool = False  # (open) it drives off another robot's way
-    replanned: bool = False  # its floor gave it a new path since the last report
 
     @property
     def active(self) -> bool:
@@ -192,13 +187,12 @@ class Navigator:
     @property
     def floor(self) -> Floor:
         if self._floor is None:
-            size = self.config.cell or cell_size_for(_BURGER)
-            if self.config.lanes:
-                self._floor = LaneFloor(self.world, size)
-            elif OPEN_FLOOR:
-                self._floor = OpenFloor(self.world, self.costmap)
-            else:
-                self._floor = LaneFloor(self.world, size, self.costmap)
+            # cells one robot wide: of the map's size on a grid map, else for the largest
+            # model in the world (a fleet of burgers gets smaller cells than one with waffles)
+            size = self.config.cell or max(
+                cell_size_for(m) for m in [_BURGER, *(r.model for r in self.robots.values())]
+            )
+            self._floor = Floor(self.world, size, None if self.config.lanes else self.costmap)
             log.info("navigation: %s", self._floor.describe())
             for robot in self.robots.values():
                 self._floor.add(robot)
@@ -231,6 +225,8 @@ class Navigator:
                 "x",
             )
         self._sync(self.table)
+        if self.floor.refuses(model) and not (self.config.lanes or self.config.cell or self.busy):
+            self._floor = None  # laid out for smaller robots before this one came: again, for all
         why = self.floor.refuses(model)
         if why is not None:
             raise FleetError(ErrorCode.INVALID_VALUE, why, "robot")
@@ -249,7 +245,7 @@ class Navigator:
         robot.blocked_since = robot.stuck_since = None
         robot.result = robot.feedback = None
         robot.command, robot.overridden_until = (0.0, 0.0), -math.inf
-        robot.making_way = robot.held_up_at_goal = False
+        robot.held_up_at_goal = False
         self.floor.stop(robot)
         self._drive_of = None
         return NavigateReply(goal_id=goal_id, robot=namespace, goal=goal_pose(req), preempted=preempted,
@@ -422,11 +418,7 @@ class Navigator:
         self._plan_some(now)
         driven = [r for r in self.robots.values() if r.active and r.planned and not r.overridden]
         floor.decide(driven, now)
-        for robot in driven:
-            if robot.replanned:
-                robot.replanned = False
-                self._tell_path(robot, floor_path(floor, robot), now)
-        self._plan_some(now)  # those the floor sent back to plan (done making way)
+        self._plan_some(now)  # those the floor sent back to plan (around a robot that stays)
         driven = [r for r in driven if r.planned]
         if driven:
             self._drive_robots(driven, table, now)
@@ -486,41 +478,48 @@ class Navigator:
                         np.array([r.model.max_angular_velocity for r in driven]))  # fmt: skip
         room = np.minimum(room, lidar_room)
         v, w = pursue(x, y, yaw, aim_x, aim_y, room, limits)
-        crowd = self._would_crowd(driven, x, y, yaw, v)
+        v_now = np.abs(table.vx[rows])
+        crowd = self._would_crowd(driven, x, y, yaw, v, v_now)
         if crowd.any():  # cutting across would touch another's cells: by the way's first point
             ks = np.flatnonzero(crowd)
             first = np.array([_first_step(ways[j]) for j in ks.tolist()])
             sub = Limits(limits.max_v[ks], limits.max_w[ks])
             dist = np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks])
             v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], np.minimum(room[ks], dist), sub)
-            v = np.where(self._would_crowd(driven, x, y, yaw, v), 0.0, v)
+            v = np.where(self._would_crowd(driven, x, y, yaw, v, v_now), 0.0, v)
         v = np.where(self._too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))
             lidar_stops = lidar_room[k] <= 0.01 and room[k] < 0.02 and lidar[k] < LOOK_AHEAD_M
-            if lidar_stops and not floor.yielding(robot):
+            if lidar_stops and floor.yielding(robot) == FREE:
                 robot.state = "blocked"
                 robot.blocked_since = robot.blocked_since if robot.blocked_since is not None else now
                 if now - robot.blocked_since >= BLOCKED_REPLAN_S:
                     self._mark_seen(robot, now)
                 continue
             robot.blocked_since = None
-            if floor.yielding(robot):
+            if floor.yielding(robot) != FREE:
                 robot.state = "yielding"
             elif floor.waiting_for(robot) != FREE:
                 robot.state = "waiting"
             else:
                 robot.state = "driving"
 
-    def _would_crowd(self, driven: list[NavRobot], x: F64, y: F64, yaw: F64, v: F64) -> npt.NDArray[np.bool_]:
-        """Whether each robot's body, GUARD_S ahead at its speed, would reach into cells another
-        robot holds (a last guard under the floor's rules: then it goes by the way's first point)."""
+    def _would_crowd(
+        self, driven: list[NavRobot], x: F64, y: F64, yaw: F64, v: F64, v_now: F64
+    ) -> npt.NDArray[np.bool_]:
+        """Whether each robot's body, somewhere along the way it goes before it could stop
+        again (one control period at the new speed, plus braking from the speed it has now),
+        would reach into cells another robot holds: a last guard under the floor's rules."""
         floor = self.floor
-        ahead = v * GUARD_S
-        nx, ny = x + ahead * np.cos(yaw), y + ahead * np.sin(yaw)
+        horizon = v * GUARD_S + v_now * GUARD_S + v_now * v_now / (2.0 * GUARD_DECEL)
         out = np.zeros(len(driven), dtype=bool)
-        for k in np.flatnonzero(ahead > 0).tolist():
-            out[k] = floor.intrudes(driven[k], float(nx[k]), float(ny[k]))
+        for k in np.flatnonzero(v > 0).tolist():
+            c, s = math.cos(yaw[k]), math.sin(yaw[k])
+            for d in np.arange(GUARD_STEP_M, float(horizon[k]) + GUARD_STEP_M, GUARD_STEP_M).tolist():
+                if floor.intrudes(driven[k], float(x[k] + d * c), float(y[k] + d * s)):
+                    out[k] = True
+                    break
         return out
 
     def _too_close(
@@ -534,7 +533,9 @@ class Navigator:
         if len(moving) == 0 or len(table.x) < 2:
             return out
         ax, ay = table.x, table.y
-        reach = 2 * (float(np.max(table.outline[:, :, 0] ** 2 + table.outline[:, :, 1] ** 2)) ** 0.5) + 2 * GUARD_MARGIN_M
+        reach = (
+            2 * (float(np.max(table.outline[:, :, 0] ** 2 + table.outline[:, :, 1] ** 2)) ** 0.5) + 2 * GUARD_MARGIN_M
+        )
         keys = np.floor(ax / reach).astype(np.int64) * 1_000_003 + np.floor(ay / reach).astype(np.int64)
         buckets: dict[int, list[int]] = {}
         for i, key in enumerate(keys.tolist()):
@@ -636,13 +637,13 @@ class Navigator:
                     continue
             else:
                 robot.stuck_since = None
-            if robot.making_way:
-                continue
             if math.hypot(goal.x - x, goal.y - y) <= goal.tolerance:
                 if goal.yaw is None or abs(math.remainder(goal.yaw - yaw, 2 * math.pi)) <= goal.yaw_tolerance:
                     self._end(robot, "reached", "", "goal reached", now)
                 else:
-                    one = Limits(np.array([robot.model.max_linear_velocity]), np.array([robot.model.max_angular_velocity]))
+                    one = Limits(
+                        np.array([robot.model.max_linear_velocity]), np.array([robot.model.max_angular_velocity])
+                    )
                     robot.command = (0.0, float(turn_to(np.array([yaw]), np.array([goal.yaw]), one)[0]))
 
     def _end(self, robot: NavRobot, status: str, reason: str, message: str, now: float) -> NavigationResult:
@@ -664,7 +665,7 @@ class Navigator:
             recoveries=robot.recoveries,
         )
         robot.state, robot.result, robot.ended = status, result, reason or status
-        robot.command, robot.planned, robot.making_way = (0.0, 0.0), False, False
+        robot.command, robot.planned = (0.0, 0.0), False
         if self._floor is not None:
             self._floor.stop(robot)
         self._events.results.append(result)
@@ -689,6 +690,8 @@ class Navigator:
             other = ""
             if robot.state == "waiting" and floor is not None:
                 other = slots.get(floor.waiting_for(robot), "")
+            elif robot.state == "yielding" and floor is not None:
+                other = slots.get(floor.yielding(robot), "")
             robot.feedback = NavigationFeedback(
                 goal_id=robot.goal_id,
                 robot=robot.namespace,
@@ -717,14 +720,6 @@ class Navigator:
             robot.ended = ""
         if rows:
             self._events.fleet = FleetNavigation(stamp=Time.from_seconds(now), robots=rows)
-
-
-def floor_path(floor: Floor, robot: NavRobot) -> F64 | None:
-    """The path the floor has the robot on now (what /plan shows after a change)."""
-    if isinstance(floor, OpenFloor):
-        w = floor.robots.get(robot.slot)
-        return None if w is None else w.path
-    return None
 
 
 def _first_step(way: list[tuple[float, float]]) -> tuple[float, float]:

@@ -69,7 +69,9 @@ class Mover:
     crowded_by: int = FREE
     #: a cell it stepped out of to let another robot through, and until when it keeps out
     gave_way: tuple[int, float] | None = None
-    #: since when it waits for a robot that does not navigate (lanes.py plans around it)
+    #: the robot it was pushed aside for (its route is not its own choice), else FREE
+    yielding_to: int = FREE
+    #: since when it waits for a robot that does not navigate (floor.py plans around it)
     still_since: float | None = None
 
     @property
@@ -80,11 +82,9 @@ class Mover:
 class Traffic:
     """The cells of one world and the robots on them (see the module docstring)."""
 
-    def __init__(self, graph: CellGraph, ahead: int = AHEAD, follow: bool = True) -> None:
+    def __init__(self, graph: CellGraph, ahead: int = AHEAD) -> None:
         self.graph = graph
         self.ahead = ahead  # cells a robot commits to ahead of its own
-        #: a robot may commit to cells a robot leaving them still holds (promised to it)
-        self.follow = follow
         self.owner = np.full(graph.count, FREE, dtype=np.int64)
         self.pending = np.full(graph.count, FREE, dtype=np.int64)
         self.movers: dict[int, Mover] = {}
@@ -224,8 +224,7 @@ class Traffic:
             if holder is None:
                 continue
             # it keeps the cell if it stands still on it, or it will need the cell on its way
-            resting = not holder.route and holder.cell != FREE and c in self.graph.footprint(holder.cell, holder.model)
-            if resting or holder.cell == c or any(c in n for n in holder.needs) or self._follows(holder, m.slot):
+            if holder.cell == c or any(c in n for n in holder.needs) or self._follows(holder, m.slot):
                 return True
         return False
 
@@ -244,6 +243,7 @@ class Traffic:
         """Commit the robot to its next cell, pushing robots of lower priority out of the way
         if need be. False when it stays (then ``waiting_for`` says who is in its way)."""
         self.decided.add(m.slot)
+        m.yielding_to = FREE
         if m.gave_way is not None and m.gave_way[1] <= now:
             m.gave_way = None
         moved = self._pibt(m, m.priority, frozenset(), 0)
@@ -265,7 +265,7 @@ class Traffic:
         for n, k in self._moves_from(m, m.cell):
             if n in blocked or n in m.route:
                 continue
-            need = self.graph.sweep(m.cell, k, m.model)
+            need = self.graph.sweep(m.cell, k)
             if any(self._taken(c, m) for c in need):
                 continue
             gave = m.cell
@@ -284,6 +284,10 @@ class Traffic:
         assert dist is not None
         g = self.graph
         allowed = g.moves(m.model)[frontier]
+        if not math.isfinite(float(dist[frontier])):
+            # it stands where the map's steps do not go (spawned against a wall, or pushed
+            # off the centres): back to any neighbour on the way, as the crow flies
+            allowed = g.inside[frontier]
         gx, gy = m.goal_xy
         found = []
         for k in range(len(MOVES)):
@@ -303,14 +307,14 @@ class Traffic:
         here = float(m.dist[frontier])
         m.waiting_for = FREE
         given = m.gave_way[0] if m.gave_way is not None else FREE
-        leave = frozenset(self.graph.footprint(frontier, m.model))
+        leave = frozenset((frontier,))
         for n, k in self._moves_from(m, frontier):
             if n == m.cell or n in m.route or n == given:
                 continue  # (never back over its own route, nor into a cell it gave way from)
             if float(m.dist[n]) >= here and not (leave & forbid) and depth == 0:
                 break  # staying is at least as good as anything left (and nobody needs its cells)
-            need = self.graph.sweep(frontier, k, m.model)
-            if any(c in forbid for c in self.graph.footprint(n, m.model)):
+            need = self.graph.sweep(frontier, k)
+            if n in forbid:
                 continue  # where a robot pushing it must go, or stands
             if any(self.pending[c] not in (FREE, m.slot) for c in need):
                 continue
@@ -323,23 +327,21 @@ class Traffic:
                 continue
             movers = [o for o in others if o is not None]
             leaving = len(movers) == 1 and movers[0].route and not any(c in movers[0].route for c in need)
-            if self.follow and leaving and not self._follows(movers[0], m.slot):
+            if leaving and not self._follows(movers[0], m.slot):
                 self._commit(m, n, need)  # it is on its way out of there: follow it in
                 return True
-            pushable = all(
-                o.pushable and o.slot not in self.decided and o.priority > rank for o in movers
-            )
+            pushable = all(o.pushable and o.slot not in self.decided and o.priority > rank for o in movers)
             if depth < MAX_PUSH_DEPTH and pushable:
                 pushed = True
                 for o in movers:
                     self.decided.add(o.slot)
-                    pushed = self._pibt(o, rank, forbid | leave | set(need), depth + 1) and pushed
+                    moved = self._pibt(o, rank, forbid | leave | set(need), depth + 1)
+                    if moved:
+                        o.yielding_to = m.slot
+                    pushed = moved and pushed
                 if pushed:
-                    if self.follow:
-                        self._commit(m, n, need)
-                        return True
-                    m.waiting_for = movers[0].slot
-                    return False  # it takes the cells once they are free
+                    self._commit(m, n, need)
+                    return True
             if m.waiting_for == FREE:
                 m.waiting_for = movers[0].slot
         return False

@@ -1,9 +1,15 @@
-"""Navigation on a grid map (a MovingAI warehouse): robots drive from cell centre to cell
-centre, in lanes, and take turns by priority inheritance (simd/nav/traffic.py).
+"""The floor as the fleet shares it: cells one robot wide, each robot's way down its goal's
+distance field, and who steps where next (simd/nav/traffic.py).
 
-Each goal's plan is a distance field over the map's cells (simd/nav/cells.py); a robot commits
-to the neighbour nearest its goal whenever it nears the last cell it holds, pushing robots of
-lower priority out of its way, and drives along the centres of the cells it holds.
+Each goal's plan is a distance field over the cells (simd/nav/cells.py); a robot commits to
+the neighbour nearest its goal whenever it nears the last cell it holds, pushing robots of
+lower priority out of its way (priority inheritance), and drives through the cells it holds.
+
+On a grid map (a MovingAI warehouse) the cells are the map's own, and robots keep to the cell
+centres: lanes, as warehouse robots drive. In an open world (a world file, a map_server map)
+the cells are laid over it as well as they fit (simd/nav/cells.py aligns them), and a robot
+cuts straight across the cells it holds wherever that line is clear of walls and of cells
+other robots hold, so that it drives nearly straight lines rather than the grid's staircase.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ import numpy.typing as npt
 
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
-from simd.nav.cells import CellGraph, FreeCellGraph, body_radius, cell_size_for
+from simd.nav.cells import CellGraph, body_radius, cell_size_for
 from simd.nav.costmap import Costmap
 from simd.nav.traffic import FREE, Mover, Traffic
 
@@ -35,22 +41,18 @@ AROUND_S = 20.0
 #: cells a robot commits to ahead of the one it stands in (in the open: further, so that it
 #: can cut straight across them)
 AHEAD = 2
-import os
-OPEN_AHEAD = int(os.environ.get("NAV_AHEAD", "3"))
-FOLLOW = os.environ.get("NAV_FOLLOW", "1") == "1"
+OPEN_AHEAD = 3
 
 
-class LaneFloor:
-    """A grid world's cells, the robots on them, and the way each may drive."""
+class Floor:
+    """A world's cells, the robots on them, and the way each may drive."""
 
     def __init__(self, world: WorldGeometry, cell: float, costmap: Costmap | None = None) -> None:
-        """On a grid map robots keep to the cell centres (lanes); given the ``costmap`` of an
-        open world, to the points of the cells where they fit (FreeCellGraph), and they cut
-        straight across the cells they hold where that is clear."""
+        """On a grid map (no ``costmap``) robots keep to the cell centres; given the ``costmap``
+        of an open world, they cut straight across the cells they hold where that is clear."""
         self.costmap = costmap
-        free = costmap is not None and os.environ.get("NAV_FREE", "1") == "1"
-        self.graph: CellGraph = FreeCellGraph(world, cell, costmap) if free and costmap is not None else CellGraph(world, cell)
-        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD, follow=costmap is None or FOLLOW)
+        self.graph = CellGraph(world, cell, align=costmap is not None)
+        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD)
 
     def describe(self) -> str:
         how = "in lanes" if self.costmap is None else "driven straight across"
@@ -60,8 +62,8 @@ class LaneFloor:
         if self.graph.fits(model):
             return None
         return (
-            f"a {model.name} needs cells of at least {cell_size_for(model):g} m and this map's are "
-            f"{self.graph.size:g} m (simd --cell-size)"
+            f"a {model.name} needs cells of at least {cell_size_for(model):g} m and this world's are "
+            f"{self.graph.size:g} m " + ("(simd --cell-size)" if self.costmap is None else "(simd --nav-cell)")
         )
 
     def add(self, robot: NavRobot) -> None:
@@ -150,7 +152,7 @@ class LaneFloor:
                 break
             cells.append(nxt)
             c = nxt
-        points = [here, *(g.point(k, robot.model) for k in cells), (robot.goal.x, robot.goal.y)]
+        points = [here, *(g.centre(k) for k in cells), (robot.goal.x, robot.goal.y)]
         return _straightened(np.array(points))
 
     def stop(self, robot: NavRobot) -> None:
@@ -211,9 +213,9 @@ class LaneFloor:
         way = traffic.way(m)
         pts = [(x, y)]
         if way and m.cell != FREE:
-            pts += _onto([g.point(m.cell, model)] + [g.point(c, model) for c in way], x, y)
+            pts += _onto([g.centre(m.cell)] + [g.centre(c) for c in way], x, y)
         else:
-            pts += [g.point(c, model) for c in way]
+            pts += [g.centre(c) for c in way]
         last = way[-1] if way else m.cell
         robot.held_up_at_goal = False
         if last == m.goal_cell and robot.goal is not None and len(way) == len(m.route):
@@ -221,10 +223,10 @@ class LaneFloor:
             if traffic.hold_free(m, traffic.box(gx, gy, m.radius)):
                 pts.append((gx, gy))
             elif not way:
-                pts.append(g.point(last, model))
+                pts.append(g.centre(last))
                 robot.held_up_at_goal = True
         elif not way and m.cell != FREE:
-            pts.append(g.point(m.cell, model))  # settle where it stands in its cell
+            pts.append(g.centre(m.cell))  # settle where it stands in its cell
         if self.costmap is not None and len(pts) > 2:
             pts = self._pulled(m, model, pts)
         return pts
@@ -257,8 +259,10 @@ class LaneFloor:
         m = self._m(robot)
         return m.waiting_for if not m.route else FREE
 
-    def yielding(self, robot: NavRobot) -> bool:
-        return False
+    def yielding(self, robot: NavRobot) -> int:
+        """The robot it moves aside for (pushed out of its way), else FREE."""
+        m = self._m(robot)
+        return m.yielding_to if m.route else FREE
 
     def intrudes(self, robot: NavRobot, x: float, y: float) -> bool:
         """Whether the robot's body at (x, y) would reach into a cell another robot holds that
