@@ -13,17 +13,26 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import zenoh
 
 from protocol.codec import decode
 from protocol.errors import ErrorCode, FleetError
+from protocol.keys import Keys
 from protocol.messages import Time
-from protocol.navigation import NavigateReply, NavigationFeedback, NavigationResult
+from protocol.navigation import NavigateReply, NavigationFeedback, NavigationResult, NavigationState
 
-if TYPE_CHECKING:
-    from clients.api import FleetClient
+
+class Asks(Protocol):
+    """What a goal needs of its client (clients.api.FleetClient)."""
+
+    keys: Keys
+    session: zenoh.Session
+
+    def navigation_state(self, robot: str) -> NavigationState: ...
+
+    def cancel_goal(self, robot: str, goal_id: str = "") -> NavigationResult: ...
 
 #: while waiting, how often (wall seconds) the daemon is asked how the goal stands
 CHECK_EVERY_S = 2.0
@@ -33,7 +42,7 @@ class Goal:
     """One goal of one robot (see the module docstring). ``feedback`` is the latest feedback,
     ``result`` the result once the goal ended (then ``done`` is true)."""
 
-    def __init__(self, client: FleetClient, robot: str) -> None:
+    def __init__(self, client: Asks, robot: str) -> None:
         self._client = client
         self.robot = robot
         self.goal_id = ""

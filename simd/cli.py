@@ -431,5 +431,5 @@ def _navigator(sim: Simulation, args: argparse.Namespace) -> Navigator:
     from simd.nav.navigator import NavConfig, Navigator
 
     data, source = SHIPPED_WORLDS.read(args.world)
-    config = NavConfig(resolution=args.cell_size, lanes=True) if is_movingai(data, source) else NavConfig()
+    config = NavConfig(lanes=True, cell=args.cell_size) if is_movingai(data, source) else NavConfig()
     return Navigator(sim.world, sim.config.lidar, sim.robots, config)

@@ -43,7 +43,6 @@ from protocol.navigation import CancelRequest, NavigateRequest, NavigationReques
 from simd.core.robots import RobotTable
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
-from simd.nav.navigator import Navigator
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
 from simd.engine.observe import LatestScans, observe_packed
 from simd.engine.ports import (
@@ -61,6 +60,7 @@ from simd.engine.ports import (
     StepResult,
     WorldReset,
 )
+from simd.nav.navigator import Navigator
 
 log = logging.getLogger(__name__)
 

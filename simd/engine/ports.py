@@ -119,7 +119,9 @@ class StepResult:
 
 
 #: What a request is answered with: a core or engine value, or the error that refused it.
-Result = RobotState | RobotList | WorldGeometry | Clock | StepResult | NavigateReply | NavigationResult | NavigationState
+Result = (
+    RobotState | RobotList | WorldGeometry | Clock | StepResult | NavigateReply | NavigationResult | NavigationState
+)
 Reply = Callable[[Result | FleetError], None]
 
 

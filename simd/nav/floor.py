@@ -15,7 +15,6 @@ other robots hold, so that it drives nearly straight lines rather than the grid'
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
@@ -24,10 +23,8 @@ from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import CellGraph, body_radius, cell_size_for
 from simd.nav.costmap import Costmap
+from simd.nav.robot import NavRobot
 from simd.nav.traffic import FREE, Mover, Traffic
-
-if TYPE_CHECKING:
-    from simd.nav.navigator import NavRobot
 
 F64 = npt.NDArray[np.float64]
 I64 = npt.NDArray[np.int64]

@@ -26,7 +26,7 @@ import logging
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import msgspec
 import numpy as np
@@ -35,7 +35,6 @@ import numpy.typing as npt
 from protocol.errors import ErrorCode, FleetError
 from protocol.messages import Time
 from protocol.navigation import (
-    ACTIVE_STATES,
     MAX_GOAL_ID_LENGTH,
     FleetNavigation,
     NavigateReply,
@@ -55,6 +54,7 @@ from simd.nav.floor import Floor
 from simd.nav.follow import LOOKAHEAD_M, Limits, along, pursue, turn_to
 from simd.nav.lidar_guard import LOOK_AHEAD_M, LidarGuard
 from simd.nav.report import NavEvents, goal_pose, path_message, pose, summary_row
+from simd.nav.robot import NavRobot
 from simd.nav.traffic import FREE
 
 log = logging.getLogger(__name__)
@@ -105,50 +105,6 @@ class NavConfig:
     feedback_every: int = 6
     fleet_every: int = 15
     patience: float = PATIENCE_S
-
-
-@dataclass(eq=False)
-class NavRobot:
-    """One robot as the navigator knows it (every robot of the world has one)."""
-
-    namespace: str
-    model: RobotModel
-    slot: int  # its place in the floor (never reused)
-    goal: NavigateRequest | None = None
-    goal_id: str = ""
-    state: str = ""  # "" before its first goal; else an ACTIVE state, "reached" or "failed"
-    started: float = 0.0
-    planned: bool = False  # its floor has a plan for its goal
-    xy: tuple[float, float] | None = None  # where it is, as of the last control step
-    now: float = 0.0
-    lidar_room: float = LOOK_AHEAD_M
-    lidar_yaw: float = 0.0  # heading when that room was measured
-    lidar_hits: F64 = field(default_factory=lambda: np.zeros((0, 2)))  # what it saw ahead (world frame)
-    blocked_since: float | None = None
-    stuck_since: float | None = None
-    marks: list[tuple[F64, float]] = field(default_factory=list)  # points it saw blocked, until
-    recoveries: int = 0
-    travelled: float = 0.0
-    command: tuple[float, float] = (0.0, 0.0)
-    overridden_until: float = -math.inf
-    result: NavigationResult | None = None
-    feedback: NavigationFeedback | None = None
-    ended: str = ""  # how its goal ended, for the next fleet summary
-    held_up_at_goal: bool = False  # (lanes) in its goal's cell, the goal point's cells held by others
-
-    @property
-    def active(self) -> bool:
-        return self.state in ACTIVE_STATES
-
-    @property
-    def overridden(self) -> bool:
-        return self.overridden_until >= self.now
-
-    @property
-    def blocked(self) -> F64 | None:
-        """The points its lidar saw in its way that it still plans around."""
-        live = [pts for pts, until in self.marks if until > self.now]
-        return np.concatenate(live) if live else None
 
 
 class Navigator:
