@@ -14,9 +14,11 @@ The spawner speaks the TurtleBot3 user's language: the positional form of the se
     fleet list
     fleet delete burger_1
     fleet daemons                              # which daemons serve the fleet
+    fleet goto tb3_0 2.0 0.5 --wait            # send it somewhere, follow it there (clients/goto.py)
 
 Exit codes: 0 success; 1 refused by the daemon (its reason on stderr as
-``fleet: <code>: <message>``); 2 usage error; 3 no daemon answered within ``--timeout``.
+``fleet: <code>: <message>``); 2 usage error; 3 no daemon answered within ``--timeout``;
+4 a goal that ``fleet goto --wait`` followed failed.
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from dataclasses import dataclass
 import msgspec
 import zenoh
 
+from clients import goto
 from clients.api import FleetClient
 from clients.fleet_args import build_parser, spawn_parser, takes_value
 from clients.fleet_output import (
@@ -93,9 +96,9 @@ def spawn_main(argv: Sequence[str] | None = None) -> int:
 def run(command: str, args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     """Run one parsed command; the exit code is the return value."""
     try:
-        opts = _options(args)
         handler = _HANDLERS[command]
         plan = handler.prepare(args) if handler.prepare else None
+        opts = _options(args)
         with FleetClient(options=opts, prefix=args.prefix, timeout=args.timeout) as client:
             return handler.run(client, args, plan)
     except UsageError as e:
@@ -352,6 +355,7 @@ _HANDLERS: dict[str, _Handler] = {
     "resume": _Handler(_run_resume),
     "reset": _Handler(_run_reset),
     "step": _Handler(_run_step, _prepare_step),
+    "goto": _Handler(goto.run, goto.prepare),
 }
 
 

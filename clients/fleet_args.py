@@ -7,19 +7,24 @@ import argparse
 from protocol.keys import DEFAULT_PREFIX
 from protocol.zenoh_config import add_zenoh_args
 
-COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step", "daemons")
+COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step", "daemons", "goto")
 
 
-def add_daemon_args(p: argparse.ArgumentParser, waiting: str = "seconds to wait for the daemon") -> None:
+def add_daemon_args(
+    p: argparse.ArgumentParser, waiting: str = "seconds to wait for the daemon", default: float | None = 3.0
+) -> None:
     """What every client takes to reach a daemon: its prefix, a deadline, and zenoh's flags."""
     p.add_argument("--prefix", default=DEFAULT_PREFIX, help="key prefix of the daemon (default: %(default)s)")
-    p.add_argument("--timeout", type=float, default=3.0, metavar="S", help=f"{waiting} (default: %(default)g)")
+    shown = " (default: %(default)g)" if default is not None else ""
+    p.add_argument("--timeout", type=float, default=default, metavar="S", help=f"{waiting}{shown}")
     add_zenoh_args(p, server=False)
 
 
-def _common_parser() -> argparse.ArgumentParser:
+def _common_parser(
+    waiting: str = "seconds to wait for the daemon", default: float | None = 3.0
+) -> argparse.ArgumentParser:
     common = argparse.ArgumentParser(add_help=False)
-    add_daemon_args(common)
+    add_daemon_args(common, waiting, default)
     common.add_argument("--json", action="store_true", help="print machine-readable JSON")
     return common
 
@@ -85,8 +90,8 @@ def build_parser(
     sub = top.add_subparsers(dest="command", metavar="COMMAND")
     cmds: dict[str, argparse.ArgumentParser] = {}
 
-    def add(name: str, help_: str) -> argparse.ArgumentParser:
-        cmds[name] = sub.add_parser(name, parents=[common], help=help_, description=help_)
+    def add(name: str, help_: str, parent: argparse.ArgumentParser = common) -> argparse.ArgumentParser:
+        cmds[name] = sub.add_parser(name, parents=[parent], help=help_, description=help_)
         return cmds[name]
 
     _add_spawn_arguments(add("spawn", "spawn a robot, or a fleet file"))
@@ -105,7 +110,44 @@ def build_parser(
     add("step", "advance a paused simulation by N ticks of 1/30 s").add_argument(
         "ticks", nargs="?", type=int, default=1, metavar="N"
     )
+    # for goto, --timeout S is the goal's time limit (it fails with "timeout" after S s of sim time);
+    # the daemon is still given the usual few seconds to answer
+    goal_limit = _common_parser("the goal's time limit: it fails with 'timeout' after S s of sim time", None)
+    _add_goto_arguments(add("goto", "send a robot to a place (or many, from a file), follow it, cancel it", goal_limit))
     return top, cmds
+
+
+GOTO_USAGE = (
+    "%(prog)s [options] NS X Y [--yaw RAD] [--tolerance M] [--wait] [--timeout S]\n"
+    "       %(prog)s [options] --cancel NS\n"
+    "       %(prog)s [options] --file GOALS [--wait]"
+)
+
+
+def _add_goto_arguments(p: argparse.ArgumentParser) -> None:
+    p.usage = GOTO_USAGE
+    p.add_argument("words", nargs="*", metavar="NS X Y", help="the robot (name or namespace) and where to, in metres")
+    p.add_argument("--yaw", type=float, metavar="RAD", help="heading to arrive with (default: any)")
+    p.add_argument(
+        "--tolerance",
+        type=float,
+        default=0.25,
+        metavar="M",
+        help="how near is there (default: %(default)g, as Nav2's goal checker)",
+    )
+    p.add_argument(
+        "--yaw-tolerance", type=float, default=0.25, metavar="RAD", help="how near the heading (default: %(default)g)"
+    )
+    p.add_argument(
+        "--wait",
+        action="store_true",
+        help="follow the goal until it ends: exit 0 when reached, 4 with the reason when it fails",
+    )
+    p.add_argument("--cancel", metavar="NS", help="cancel the goal of robot NS")
+    p.add_argument(
+        "-f", "--file", metavar="GOALS", help="a YAML list of goals: - {robot: tb3_0, x: 1.0, y: 0.5, yaw: 0.0}"
+    )
+    p.set_defaults(goal_timeout=None)
 
 
 def spawn_parser(prog: str) -> argparse.ArgumentParser:

@@ -169,3 +169,6 @@ class FleetNavigation(msgspec.Struct, kw_only=True):
 
     stamp: Time
     robots: list[RobotNavigation]
+    #: wall seconds the navigator has worked on the daemon's simulation thread since it started
+    #: (what navigating costs the simulation; a benchmark reads it)
+    work_seconds: float = 0.0

@@ -114,6 +114,14 @@ def build_parser() -> argparse.ArgumentParser:
         "daemon brings its robots back (a missing FILE is created)",
     )
     p.add_argument(
+        "--nav-cell",
+        type=float,
+        default=None,
+        metavar="M",
+        help="side of the cells one robot wide that navigation lays over an open world, in metres (default: the "
+        "smallest the largest robot fits in: 0.35 for burgers, 0.6 with waffles; a MovingAI map uses --cell-size)",
+    )
+    p.add_argument(
         "--no-nav",
         action="store_true",
         help="no navigation: robots go only where cmd_vel drives them (by default every robot takes goals on "
@@ -215,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
         return fail("--seed must be >= 0")
     if not 0.0 <= args.odom_noise <= 0.5:
         return fail("--odom-noise must be in 0..0.5 (a fraction of each wheel's travel)")
+    if args.nav_cell is not None and not (math.isfinite(args.nav_cell) and 0.2 <= args.nav_cell <= 5.0):
+        return fail(f"--nav-cell must be a number of metres in 0.2..5, got {args.nav_cell:g}")
     if not (math.isfinite(args.cell_size) and args.cell_size > 0):
         return fail(f"--cell-size must be a finite number of metres > 0, got {args.cell_size:g}")
     try:
@@ -420,16 +430,19 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-if __name__ == "__main__":
-    sys.exit(main())
-
-
 def _navigator(sim: Simulation, args: argparse.Namespace) -> Navigator:
-    """The navigator for the world: a MovingAI map is planned on its own cells, in lanes."""
+    """The navigator for the world: a MovingAI map is navigated on its own cells, in lanes; an
+    open world on cells laid over it (``--nav-cell`` wide, else as the robots need)."""
     from simd.core.movingai import is_movingai
     from simd.core.worldfile import SHIPPED_WORLDS
     from simd.nav.navigator import NavConfig, Navigator
 
     data, source = SHIPPED_WORLDS.read(args.world)
-    config = NavConfig(lanes=True, cell=args.cell_size) if is_movingai(data, source) else NavConfig()
+    grid_map = is_movingai(data, source)
+    config = NavConfig(lanes=True, cell=args.cell_size) if grid_map else NavConfig(cell=args.nav_cell)
     return Navigator(sim.world, sim.config.lidar, sim.robots, config)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+

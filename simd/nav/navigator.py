@@ -25,6 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import re
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -130,6 +131,8 @@ class Navigator:
         self._drive: tuple[I64, F64, F64] = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         self._stopping: list[str] = []
         self._now = 0.0
+        #: wall seconds of work on the simulation thread (reported; never decides anything)
+        self.work_seconds = 0.0
 
     # -- the world as navigation sees it (built when the first goal comes) -----------------------
 
@@ -327,6 +330,7 @@ class Navigator:
         cfg = self.config
         if not self.robots:
             return
+        started = time.perf_counter()
         busy = self.busy
         if busy and tick % cfg.control_every == 0:
             self._control(table, now)
@@ -335,6 +339,7 @@ class Navigator:
             self._feedback(table, now)
         if tick % cfg.fleet_every == 0:
             self._fleet_summary(now)
+        self.work_seconds += time.perf_counter() - started
 
     def _sync(self, table: RobotTable) -> None:
         """Know every robot of the table, and the row of each (the table changed)."""
@@ -675,7 +680,9 @@ class Navigator:
                                     "" if robot.active else robot.ended))  # fmt: skip
             robot.ended = ""
         if rows:
-            self._events.fleet = FleetNavigation(stamp=Time.from_seconds(now), robots=rows)
+            self._events.fleet = FleetNavigation(
+                stamp=Time.from_seconds(now), robots=rows, work_seconds=round(self.work_seconds, 4)
+            )
 
 
 def _first_step(way: list[tuple[float, float]]) -> tuple[float, float]:

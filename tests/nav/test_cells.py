@@ -600,13 +600,16 @@ def test_cell_graph_distances_treat_blocked_cells_as_walls() -> None:
     walled = graph.distances(BURGER, goal, blocked)
     assert np.isposinf(walled[blocked]).all()
     assert (walled[np.isfinite(walled)] >= free[np.isfinite(walled)]).all()  # walls only lengthen ways
-    kept = moves.reshape(graph.height, graph.width, 8).copy()
-    grid_free = np.ones(graph.count, dtype=bool)
-    grid_free[blocked] = False
-    for k, (dr, dc) in enumerate(MOVES):  # no move out of a blocked cell, nor into one
-        shifted = np.zeros((graph.height + 2, graph.width + 2), dtype=bool)
-        shifted[1:-1, 1:-1] = grid_free.reshape(graph.height, graph.width)
-        into = shifted[1 + dr : 1 + dr + graph.height, 1 + dc : 1 + dc + graph.width]
-        kept[:, :, k] &= grid_free.reshape(graph.height, graph.width) & into
-    kept16 = knights_from(kept.reshape(-1, 8), graph.width)  # and the knight's moves through what is left
+    kept = moves.copy()
+    wall = set(blocked.tolist())
+    for c in range(graph.count):  # no step out of a blocked cell, into one, nor past one's corner
+        for k, (dr, dc) in enumerate(MOVES):
+            if not kept[c, k]:
+                continue
+            touched = {c, c + dr * graph.width + dc}
+            if dr and dc:
+                touched |= {c + dc, c + dr * graph.width}
+            if touched & wall:
+                kept[c, k] = False
+    kept16 = knights_from(kept, graph.width)  # and the knight's moves through what is left
     same_as_oracle(walled, bellman_ford(kept16, graph.width, goal, graph.size))
