@@ -88,6 +88,8 @@ def read_goals(path: str) -> list[GoalLine]:
         goals = msgspec.yaml.decode(text.encode(), type=list[GoalLine])
     except msgspec.ValidationError as e:
         reason, where = split_location(str(e))
+        if not where or where == "$":
+            reason = f"a goals file is a list of goals, as '- {{robot: tb3_0, x: 1.0, y: 2.0}}' ({reason})"
         raise UsageError(f"{path}: {where or '$'}: {reason}") from None
     except (msgspec.DecodeError, yaml.YAMLError) as e:
         reason, where = yaml_syntax_problem(e) if isinstance(e, msgspec.DecodeError) else (str(e), "")

@@ -15,13 +15,14 @@ from types import FrameType
 from typing import TYPE_CHECKING
 
 from protocol.control import DEFAULT_DAEMON_ID
-from protocol.errors import FleetError
+from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
 from protocol.ros_domain import domain_id
 from protocol.zenoh_config import add_zenoh_args, options_from_args, zenoh_error_text
 
 if TYPE_CHECKING:
+    from protocol.navigation import NavigateRequest
     from simd.core.sim import Simulation
     from simd.nav.navigator import Navigator
 
@@ -270,6 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         ),
     )
     saver = None
+    saved = None
     if args.state:
         state_path = Path(args.state)
         if not state_path.parent.is_dir():
@@ -351,6 +353,8 @@ def main(argv: list[str] | None = None) -> int:
         if tick is not None and sim.tick == 0 and len(sim.robots) == 0:
             sim.start_at(tick)  # the fleet's clock: stepped together, its daemons' ticks agree
     navigator = None if args.no_nav else _navigator(sim, args)
+    if args.state and saved is not None and saved.goals:
+        _resume_goals(sim, navigator, saved.goals)
     engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver, navigator=navigator)
     adapter: FleetAdapter | None = None
     presence: Presence | None = None
@@ -441,6 +445,25 @@ def _navigator(sim: Simulation, args: argparse.Namespace) -> Navigator:
     grid_map = is_movingai(data, source)
     config = NavConfig(lanes=True, cell=args.cell_size) if grid_map else NavConfig(cell=args.nav_cell)
     return Navigator(sim.world, sim.config.lidar, sim.robots, config)
+
+
+def _resume_goals(sim: Simulation, navigator: Navigator | None, goals: list[NavigateRequest]) -> None:
+    """The goals saved in the state file, sent again: the robots go on to where they were sent."""
+    if navigator is None:
+        print(f"simd: state: {len(goals)} goals not resumed (navigation is off: --no-nav)", flush=True)
+        return
+    resumed = 0
+    for goal in goals:
+        robot = sim.find(goal.robot)
+        try:
+            if robot is None:
+                raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {goal.robot!r}", "robot")
+            navigator.goal(robot.namespace, robot.model, goal, sim.time)
+            resumed += 1
+        except FleetError as e:
+            print(f"simd: state: goal {goal.goal_id} of {goal.robot} not resumed: {e.message}", flush=True)
+    navigator.take_events()  # nothing was preempted: the results of a fresh start are none
+    print(f"simd: state: resumed {resumed} goals", flush=True)
 
 
 if __name__ == "__main__":

@@ -3,7 +3,9 @@
 A daemon that restarts (a crash, ``kill -9``, an upgrade, a container that is replaced) would
 otherwise come back empty, and every client would find its robot gone. The state file holds
 what makes the fleet: the world's name, the sim time, and every robot's name, namespace, model,
-true pose, odometry pose, spawn pose and last commanded velocity. It is written every
+true pose, odometry pose, spawn pose and last commanded velocity, and the goals the robots are
+on (``fleet goto``: a restarted daemon drives them on to where they were sent; the goal's
+time and timeout count again from the restart). It is written every
 ``SAVE_EVERY_S`` seconds of wall time, soon after every spawn, delete or reset, and on
 shutdown, always whole: JSON to a temporary file in the same directory, flushed to disk, then
 renamed over the old one, so a kill at any moment leaves either the previous state or the new
@@ -31,6 +33,7 @@ import msgspec
 
 from protocol.control import SpawnRequest
 from protocol.errors import FleetError
+from protocol.navigation import NavigateRequest
 from simd.core.sim import Simulation
 
 log = logging.getLogger(__name__)
@@ -68,10 +71,12 @@ class SavedFleet(msgspec.Struct, kw_only=True, forbid_unknown_fields=True):
     dt: float
     robots: list[SavedRobot]
     saved_at: float = 0.0  # wall clock (Unix time), for people reading the file
+    goals: list[NavigateRequest] = []  # the active goals, each with its robot and goal_id
 
 
-def capture(sim: Simulation) -> SavedFleet:
-    """The fleet as it is now (call from the thread that owns the simulation)."""
+def capture(sim: Simulation, goals: list[NavigateRequest] | None = None) -> SavedFleet:
+    """The fleet as it is now, with the navigator's active ``goals`` (call from the thread
+    that owns the simulation)."""
     robots = [
         SavedRobot(
             name=s.name,
@@ -86,7 +91,7 @@ def capture(sim: Simulation) -> SavedFleet:
         for s in sim.states()
     ]
     return SavedFleet(format=FORMAT, version=VERSION, world=sim.world.name, tick=sim.tick, dt=sim.config.dt,
-                      robots=robots, saved_at=time.time())  # fmt: skip
+                      robots=robots, saved_at=time.time(), goals=goals or [])  # fmt: skip
 
 
 def write(path: Path, fleet: SavedFleet) -> None:

@@ -298,12 +298,15 @@ class Engine:
             self._cancel_steps()
             self.serve_pending()
             if self._saver is not None:
-                self._saver.save_now(capture(self.sim))
+                self._saver.save_now(capture(self.sim, self._goals()))
 
     def _save(self) -> None:
         assert self._saver is not None
-        self._saver.offer(capture(self.sim))
+        self._saver.offer(capture(self.sim, self._goals()))
         self._next_save = self._wall() + SAVE_EVERY_S
+
+    def _goals(self) -> list[NavigateRequest]:
+        return [] if self.navigator is None else self.navigator.goals()
 
     def _changed(self) -> None:
         """The fleet changed (spawn, delete, reset): save it soon."""
@@ -358,6 +361,8 @@ class Engine:
             said = nav.take_events()
             if said:
                 self._event(Navigation(said))
+                if said.results:
+                    self._changed()  # a goal ended: no longer one to resume after a restart
         if publish:
             for a in self.adapters:
                 a.on_tick(snap)
@@ -574,12 +579,14 @@ class Engine:
         assert robot is not None
         accepted = nav.goal(ns, robot.model, req, self.sim.time)
         self._tell_navigation()  # the preempted goal's result goes before this reply
+        self._changed()
         return accepted
 
     def _cancel_goal(self, req: CancelRequest, reply: Reply) -> Result:
         nav, ns = self._nav(req.robot)
         result = nav.cancel(ns, req.goal_id, self.sim.time)
         self._tell_navigation()
+        self._changed()
         return result
 
     def _navigation_state(self, req: NavigationStateRequest, reply: Reply) -> Result:

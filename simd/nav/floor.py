@@ -94,20 +94,22 @@ class Floor:
             cells = np.unique(np.array([c for x, y in blocked if (c := g.index(float(x), float(y))) is not None]))
         dist = g.distances(robot.model, goal_cell, cells)
         start = m.cell if m.cell != FREE else g.index(*here)
-        if start is None or not math.isfinite(self._reach(dist, start)):
+        if start is None or not math.isfinite(self._reach(robot.model, dist, start)):
             return None
         self.traffic.set_goal(m, dist, goal_cell, (goal.x, goal.y), robot.started)
         return self._descent(robot, here)
 
-    def _reach(self, dist: npt.NDArray[np.float32], start: int) -> float:
+    def _reach(self, model: RobotModel, dist: npt.NDArray[np.float32], start: int) -> float:
         """Metres from ``start`` to the goal (from a neighbour when the robot stands where its
-        circle does not fit, e.g. spawned against a wall)."""
+        circle does not fit, e.g. spawned against a wall; from a cell it fits in, only along
+        the steps: the corner between two walls is no way out)."""
         d = float(dist[start])
-        if math.isfinite(d):
-            return d
         g = self.graph
-        near = [g.neighbour(start, k) for k in range(8)]
-        return min((float(dist[n]) for n in near if 0 <= n < g.count), default=math.inf)
+        if math.isfinite(d) or g.standable(model)[start]:
+            return d
+        inside = g.inside[start]
+        near = [g.neighbour(start, k) for k in range(8) if inside[k]]  # not off one edge onto the other
+        return min((float(dist[n]) for n in near), default=math.inf)
 
     def _goal_cell(self, model: RobotModel, x: float, y: float, tolerance: float) -> int | None:
         """The goal's cell, or the nearest cell the model stands in within the goal's tolerance

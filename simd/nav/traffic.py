@@ -284,7 +284,7 @@ class Traffic:
         assert dist is not None
         g = self.graph
         allowed = g.moves(m.model)[frontier]
-        if not math.isfinite(float(dist[frontier])):
+        if not math.isfinite(float(dist[frontier])) and not g.standable(m.model)[frontier]:
             # it stands where the map's steps do not go (spawned against a wall, or pushed
             # off the centres): back to any neighbour on the way, as the crow flies
             allowed = g.inside[frontier]

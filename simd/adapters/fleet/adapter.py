@@ -89,7 +89,8 @@ class FleetAdapter:
         # this daemon's clock alone, under its id: what its healthcheck asks in a shared fleet
         mine = [requests.Route(keys.daemon_clock(daemon_id), ClockRequest, acts=False)] if daemon_id else []
         self._queryables: list[Any] = requests.declare(session, keys, self._submit, mine)
-        self.navigation = NavigationKeys(session, keys, self._submit) if engine.navigator is not None else None
+        # declared with navigation off too: a goal is then refused saying why (--no-nav)
+        self.navigation = NavigationKeys(session, keys, self._submit)
         engine.attach(self)
 
     # -- requests (zenoh threads) ---------------------------------------------------------------
@@ -235,9 +236,8 @@ class FleetAdapter:
             self.outbox.put(partial(self.publisher.add_robot, event.robot, event.time))
         elif isinstance(event, Deleted):
             self.outbox.put(partial(self.publisher.remove_robot, event.robot.namespace))
-            if self.navigation is not None:
-                self.navigation.forget(event.robot.namespace)
-        elif isinstance(event, Navigation) and self.navigation is not None:
+            self.navigation.forget(event.robot.namespace)
+        elif isinstance(event, Navigation):
             self.outbox.put(partial(self.navigation.publish, event.events))
 
     def on_clock(self, clock: Clock) -> None:
@@ -253,8 +253,7 @@ class FleetAdapter:
         if self.members is not None:
             self.members.close()
         undeclare_all(self._queryables)
-        if self.navigation is not None:
-            self.navigation.close()
+        self.navigation.close()
         self.commands.close()
         self.outbox.close()
         self.publisher.close()

@@ -1,0 +1,195 @@
+"""The navigator in-process, on the simulation it drives, tick by tick (lockstep: no clock).
+
+Meetings of robots in the open and in lanes one robot wide, paths that exist exactly when a
+flood fill says one should, goals nobody can reach."""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+import numpy as np
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from protocol.control import SpawnRequest
+from protocol.navigation import NavigateRequest, NavigationResult
+from simd.core.mapworld import world_from_movingai
+from simd.core.movingai import parse_movingai
+from simd.core.sim import SimConfig, Simulation
+from simd.core.worldfile import WorldGeometry, world_from_dict
+from simd.nav.navigator import NavConfig, Navigator
+
+CELL = 0.5
+#: two burgers' centres closer than this would have their bodies touch (wheel box 0.306 m wide)
+TOUCH_M = 0.2
+
+Robot = tuple[str, tuple[float, float, float], tuple[float, float]]
+
+
+def drive(
+    world: WorldGeometry, robots: list[Robot], seconds: float, config: NavConfig | None = None
+) -> tuple[dict[str, NavigationResult], float, Simulation]:
+    """Spawn the robots, send each to its goal, tick until all ended or ``seconds`` passed:
+    the results, the closest two robots' centres came, and the simulation."""
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots, config)
+    for name, (x, y, yaw), _ in robots:
+        sim.spawn(SpawnRequest(name=name, x=x, y=y, yaw=yaw))
+    for name, _, (gx, gy) in robots:
+        robot = sim.find(name)
+        assert robot is not None
+        nav.goal(name, robot.model, NavigateRequest(x=gx, y=gy, tolerance=0.1), sim.time)
+    results: dict[str, NavigationResult] = {}
+    closest = math.inf
+    for _ in range(int(seconds * 30)):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        for r in nav.take_events().results:
+            results[r.robot] = r
+        t = sim.robots
+        if len(t.x) > 1:
+            d = np.hypot(t.x[:, None] - t.x[None, :], t.y[:, None] - t.y[None, :]) + np.eye(len(t.x)) * 9.0
+            closest = min(closest, float(d.min()))
+        if len(results) == len(robots):
+            break
+    return results, closest, sim
+
+
+def where(sim: Simulation, name: str) -> tuple[float, float]:
+    t = sim.robots
+    row = t.row_of(name)
+    return float(t.x[row]), float(t.y[row])
+
+
+def open_world(half: float = 3.0) -> WorldGeometry:
+    return world_from_dict({"name": "open", "bounds": {"x_min": -half, "x_max": half, "y_min": -half, "y_max": half}})
+
+
+def reached_all(results: dict[str, NavigationResult], robots: list[Robot], sim: Simulation) -> None:
+    assert sorted(results) == sorted(name for name, _, _ in robots), results
+    for name, _, (gx, gy) in robots:
+        r = results[name]
+        assert (r.status, r.reason) == ("reached", ""), r
+        x, y = where(sim, name)
+        assert math.hypot(x - gx, y - gy) <= 0.1 + 1e-9
+
+
+def test_head_on_in_the_open() -> None:
+    robots: list[Robot] = [("a", (-1.0, 0.0, 0.0), (1.0, 0.0)), ("b", (1.0, 0.0, math.pi), (-1.0, 0.0))]
+    results, closest, sim = drive(open_world(), robots, 60)
+    reached_all(results, robots, sim)
+    assert closest > TOUCH_M
+
+
+def test_four_robots_cross_in_the_middle() -> None:
+    robots: list[Robot] = [
+        ("a", (0.0, -1.0, math.pi / 2), (0.0, 1.0)),
+        ("b", (-1.0, 0.0, 0.0), (1.0, 0.0)),
+        ("c", (0.0, 1.0, -math.pi / 2), (0.0, -1.0)),
+        ("d", (1.0, 0.0, math.pi), (-1.0, 0.0)),
+    ]
+    results, closest, sim = drive(open_world(), robots, 90)
+    reached_all(results, robots, sim)
+    assert closest > TOUCH_M
+
+
+def aisle_map() -> WorldGeometry:
+    """A lane one cell wide between two shelves, open bays at both ends."""
+    text = "type octile\nheight 5\nwidth 12\nmap\n" + "\n".join(
+        ["...@@@@@@...", "...@@@@@@...", "............", "...@@@@@@...", "...@@@@@@..."]
+    )
+    return world_from_movingai(parse_movingai(text, "aisle.map"), "aisle.map", CELL)
+
+
+def test_two_robots_swap_ends_of_a_lane_one_cell_wide() -> None:
+    robots: list[Robot] = [("a", (0.75, 1.25, 0.0), (5.25, 1.25)), ("b", (5.25, 1.25, math.pi), (0.75, 1.25))]
+    results, closest, sim = drive(aisle_map(), robots, 120, NavConfig(lanes=True, cell=CELL))
+    reached_all(results, robots, sim)
+    assert closest > TOUCH_M
+
+
+def test_a_goal_walled_off_fails_with_no_path() -> None:
+    world = world_from_dict(
+        {
+            "name": "ring",
+            "bounds": {"x_min": -3, "x_max": 3, "y_min": -3, "y_max": 3},
+            "obstacles": [  # a closed box of walls around (1.5, 0), with room inside for a burger
+                {"type": "box", "x_min": 0.6, "x_max": 2.4, "y_min": 0.8, "y_max": 0.9},
+                {"type": "box", "x_min": 0.6, "x_max": 2.4, "y_min": -0.9, "y_max": -0.8},
+                {"type": "box", "x_min": 0.6, "x_max": 0.7, "y_min": -0.9, "y_max": 0.9},
+                {"type": "box", "x_min": 2.3, "x_max": 2.4, "y_min": -0.9, "y_max": 0.9},
+            ],
+        }
+    )
+    robots: list[Robot] = [("a", (-1.5, 0.0, 0.0), (1.5, 0.0))]
+    results, _, sim = drive(world, robots, 10)
+    r = results["a"]
+    assert (r.status, r.reason) == ("failed", "no_path"), r
+    x, y = where(sim, "a")
+    assert math.hypot(x + 1.5, y) < 0.05  # it did not set off
+
+
+# -- a path exists exactly when a flood fill finds one -------------------------------------------
+
+
+def flood(free: np.ndarray, start: tuple[int, int]) -> np.ndarray:
+    """Cells reachable from ``start`` by steps to the four side neighbours (a robot one cell
+    wide reaches exactly these: a diagonal step needs both side cells free anyway)."""
+    seen = np.zeros_like(free)
+    seen[start] = True
+    todo = deque([start])
+    while todo:
+        r, c = todo.popleft()
+        for rr, cc in ((r + 1, c), (r - 1, c), (r, c + 1), (r, c - 1)):
+            if 0 <= rr < free.shape[0] and 0 <= cc < free.shape[1] and free[rr, cc] and not seen[rr, cc]:
+                seen[rr, cc] = True
+                todo.append((rr, cc))
+    return seen
+
+
+@st.composite
+def grids(draw: st.DrawFn) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
+    h = draw(st.integers(3, 9))
+    w = draw(st.integers(3, 9))
+    cells = draw(st.lists(st.booleans(), min_size=h * w, max_size=h * w))
+    free = np.array(cells, dtype=bool).reshape(h, w)
+    open_cells = np.argwhere(free)
+    if len(open_cells) < 2:
+        free[0, 0] = free[h - 1, w - 1] = True
+        open_cells = np.argwhere(free)
+    i = draw(st.integers(0, len(open_cells) - 1))
+    j = draw(st.integers(0, len(open_cells) - 2))
+    j += j >= i
+    a, b = open_cells[i], open_cells[j]
+    return free, (int(a[0]), int(a[1])), (int(b[0]), int(b[1]))
+
+
+def centre(h: int, rc: tuple[int, int]) -> tuple[float, float]:
+    r, c = rc
+    return ((c + 0.5) * CELL, (h - r - 0.5) * CELL)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(grids())
+def test_a_path_exists_exactly_when_a_flood_fill_finds_one(
+    grid: tuple[np.ndarray, tuple[int, int], tuple[int, int]],
+) -> None:
+    free, start, goal = grid
+    h, w = free.shape
+    text = f"type octile\nheight {h}\nwidth {w}\nmap\n" + "\n".join(
+        "".join("." if f else "@" for f in row) for row in free
+    )
+    world = world_from_movingai(parse_movingai(text, "random.map"), "random.map", CELL)
+    (sx, sy), (gx, gy) = centre(h, start), centre(h, goal)
+    results, _, sim = drive(world, [("a", (sx, sy, 0.0), (gx, gy))], 2 * (h + w) * CELL / 0.22 + 20,
+                            NavConfig(lanes=True, cell=CELL))  # fmt: skip
+    r = results.get("a")
+    assert r is not None, "the goal neither ended nor was reached"
+    if flood(free, start)[goal]:
+        assert (r.status, r.reason) == ("reached", ""), (text, r)
+    else:
+        assert (r.status, r.reason) == ("failed", "no_path"), (text, r)
+        x, y = where(sim, "a")
+        assert math.hypot(x - sx, y - sy) < 0.05
