@@ -299,7 +299,7 @@ def test_goals_repeat_bit_for_bit_for_a_seed(daemon_factory: Callable[..., Daemo
             c.spawn(f"r{k}", x, y)
         c.send_goals([("r0", NavigateRequest(x=0.5, y=1.8)), ("r1", NavigateRequest(x=-2.0, y=-0.5)),
                       ("r2", NavigateRequest(x=-0.5, y=-1.8))])  # fmt: skip
-        trace = []
+        trace: list[list[tuple[float, ...]]] = []
         for _ in range(20):
             reply = c.step(30, observe=["r0", "r1", "r2"])
             trace.append(
