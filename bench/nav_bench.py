@@ -85,8 +85,8 @@ def open_goals(world_name: str) -> Goals:
     """Points a burger reaches from the world's default spawn, with room around them."""
     from simd.core.models import MODELS
     from simd.core.worldfile import load_world
-    from simd.nav import grid_search
     from simd.nav.costmap import Costmap, Grid
+    from simd.nav.flood import reachable
 
     world = load_world(world_name)
     model = MODELS["burger"]
@@ -94,7 +94,7 @@ def open_goals(world_name: str) -> Goals:
     free = np.isfinite(cm.costs(model))
     start = cm.grid.cell(*world.default_spawn[:2])
     assert start is not None
-    ok = grid_search.reachable(free, start) & (cm.clearance >= model.radius + 0.05)
+    ok = reachable(free, start) & (cm.clearance >= model.radius + 0.05)
     rr, cc = np.nonzero(ok)
     points = cm.grid.centres(np.stack([rr, cc], axis=1).astype(np.int32))
     return Goals(points, points, 0.7)

@@ -1,8 +1,8 @@
 """The compiled fast paths: one registry of them, and the one switch that turns them off.
 
-Six hot loops have a C twin built with the package (when a C compiler is there): the lidar
-kernel, the lidar's noise and masking, the diff-drive arithmetic, the odometry packer, the
-navigation's grid search (A*) and its distance fields on the cell graph (Dijkstra).
+Five hot loops have a C twin built with the package (when a C compiler is there): the lidar
+kernel, the lidar's noise and masking, the diff-drive arithmetic, the odometry packer, and
+navigation's distance fields on the cell graph (Dijkstra).
 Each numpy version stays in the code as the reference that tests compare the C one with, and
 as the fallback where nothing was compiled. ``KERNELS`` lists them: every module that has a
 twin asks for it here by its label (``load("drive")``), and ``status()`` reports the same
@@ -40,7 +40,6 @@ KERNELS: dict[str, Kernel] = {
     "scannoise": Kernel("simd.core._scannoise", "simd/core/_scannoise.c"),
     "drive": Kernel("simd.core._drive", "simd/core/_drive.c"),
     "odompack": Kernel("simd.wire._odompack", "simd/wire/_odompack.c"),
-    "astar": Kernel("simd.nav._astar", "simd/nav/_astar.c"),
     "cellpaths": Kernel("simd.nav._cellpaths", "simd/nav/_cellpaths.c"),
 }
 

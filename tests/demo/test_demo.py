@@ -80,6 +80,13 @@ def test_ctrl_c_ends_the_demo_with_status_0_and_leaves_no_daemon(tmp_path: Path)
             time.sleep(0.1)
         assert "spawned tb3_0" in output(tmp_path)
         assert processes_with(endpoint), "the demo's simd is running"
+        # what it tells a newcomer to do next works as printed: tb3_0 drives across the world
+        goto = next(line for line in output(tmp_path).splitlines() if "fleet goto" in line)
+        command = goto.split(":", 1)[1].strip().split()
+        assert command[:2] == [".venv/bin/fleet", "goto"] and "--wait" in command
+        went = subprocess.run(command, cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert went.returncode == 0, went.stdout + went.stderr
+        assert "reached" in went.stdout
         os.killpg(demo.pid, signal.SIGINT)  # what Ctrl-C in its terminal does
         assert demo.wait(15) == 0, output(tmp_path)
     finally:
