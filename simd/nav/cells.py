@@ -56,6 +56,7 @@ from simd.core import native
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.costmap import Grid, clearance_field
+from simd.nav.lanes import keep_right, reversed_moves
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]
@@ -102,6 +103,8 @@ class CellGraph:
     world: WorldGeometry
     size: float
     align: bool = False
+    #: one-way lanes in the corridors two cells wide (simd/nav/lanes.py): on grid maps
+    one_way: bool = False
     grid: Grid = field(init=False)
     _half: F32 = field(init=False)  # clearance at every centre and midpoint (a grid of size/2)
     _standable: dict[str, B] = field(default_factory=dict, init=False)
@@ -185,6 +188,8 @@ class CellGraph:
         m = self._moves.get(model.name)
         if m is None:
             m = self._allowed_moves(model)
+            if self.one_way:
+                m = keep_right(self.standable(model).reshape(self.height, self.width), m, MOVES)
             m.setflags(write=False)
             self._moves[model.name] = m
         return m
@@ -255,6 +260,8 @@ class CellGraph:
                         for k in np.flatnonzero(moves[src]).tolist():
                             if not hit.isdisjoint(self.sweep(src, k)):
                                 moves[src, k] = False
+        if self.one_way:  # the distance *to* the goal: searched from it over the moves turned around
+            moves = reversed_moves(moves, self.width, MOVES)
         return dijkstra(with_knights(moves, self.width), self.width, goal, self.size)
 
 

@@ -48,7 +48,7 @@ class Floor:
         """On a grid map (no ``costmap``) robots keep to the cell centres; given the ``costmap``
         of an open world, they cut straight across the cells they hold where that is clear."""
         self.costmap = costmap
-        self.graph = CellGraph(world, cell, align=costmap is not None)
+        self.graph = CellGraph(world, cell, align=costmap is not None, one_way=costmap is None)
         self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD)
 
     def describe(self) -> str:
