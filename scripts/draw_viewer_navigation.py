@@ -34,8 +34,8 @@ SIM_SECONDS = 9.0
 
 
 def cells(rows: list[str], height: int) -> tuple[list[tuple[float, float]], list[tuple[float, float]]]:
-    """Open cells on the edge corridors (where robots start) and in the aisles (their goals),
-    as world points (a cell's centre: docs/worlds.md)."""
+    """Open cells of the outermost ring of the edge corridor (where robots start) and of the
+    aisles, between two shelves (their goals), as world points (a cell's centre: docs/worlds.md)."""
     width = len(rows[0])
     corridor, aisle = [], []
     for r, line in enumerate(rows):
@@ -43,11 +43,9 @@ def cells(rows: list[str], height: int) -> tuple[list[tuple[float, float]], list
             if ch != ".":
                 continue
             xy = ((c + 0.5) * CELL, (height - r - 0.5) * CELL)
-            edge = r < 2 or r >= height - 2 or c < 2 or c >= width - 2
-            between = 0 < r < height - 1 and (rows[r - 1][c] == "@" and rows[r + 1][c] == "@")
-            if edge and (r in (0, height - 1) or c in (0, width - 1)):
+            if r in (0, height - 1) or c in (0, width - 1):
                 corridor.append(xy)
-            elif between:
+            elif 0 < r < height - 1 and rows[r - 1][c] == "@" and rows[r + 1][c] == "@":
                 aisle.append(xy)
     return corridor, aisle
 

@@ -200,7 +200,8 @@ class NavBoard:
         row = self.goals.pop(ns, None)
         if row is not None and row.ended:
             self._ending -= 1
-        if row is not None or self.paths.pop(ns, None) is not None:
+        had_path = self.paths.pop(ns, None) is not None
+        if row is not None or had_path:
             self._bump()
         self._heard.discard(ns)
 

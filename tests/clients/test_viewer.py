@@ -29,7 +29,7 @@ from clients.viewer.state import FleetState, color_index, color_rgb
 from protocol.control import Pose2D, RobotRecord
 from protocol.messages import FleetOdometry, FleetScans, Header, LaserScan, Odometry, Quaternion, Time
 from tests.cdp import Chromium
-from tests.clients.viewer_harness import Viewer, fleet_view
+from tests.clients.viewer_harness import Viewer, colour_count, fleet_view
 from tests.conftest import ROOT, Daemon
 
 #: The four robots of turtlebot3_simulations' multi_robot.launch.py.
@@ -241,14 +241,6 @@ def spawn_multi_robot(daemon: Daemon) -> list[tuple[str, float, float, float]]:
         c.spawn(f"tb3_{i}", x, y, yaw, model="waffle" if i == 1 else "burger")
         robots.append((f"tb3_{i}", x, y, yaw))
     return robots
-
-
-def colour_count(img: Image.Image, centre: tuple[float, float], half: float, rgb: tuple[int, ...]) -> int:
-    """Pixels within ``half`` px of ``centre`` that are ``rgb`` (within 8 per channel)."""
-    a = np.asarray(img.convert("RGB"), dtype=np.int16)
-    x0, y0 = max(0, round(centre[0] - half)), max(0, round(centre[1] - half))
-    box = a[y0 : round(centre[1] + half) + 1, x0 : round(centre[0] + half) + 1]
-    return int(np.sum(np.all(np.abs(box - np.asarray(rgb[:3])) <= 8, axis=-1)))
 
 
 # -- snapshot ---------------------------------------------------------------------------------

@@ -6,6 +6,7 @@ it ends, a viewer opened mid-goal, and the feed fed garbage."""
 
 from __future__ import annotations
 
+import io
 import json
 import math
 from collections.abc import Callable
@@ -14,6 +15,7 @@ from typing import Any
 import msgspec
 import numpy as np
 import pytest
+from PIL import Image
 
 from clients.viewer.decimate import PATH_MAX_POINTS, thin_path
 from clients.viewer.navigation import ENDED_KEEP_S, MAX_TEXT, NavBoard, NavCursor
@@ -23,7 +25,7 @@ from protocol.control import Pose2D
 from protocol.messages import Time
 from protocol.navigation import FleetNavigation, NavigationPath, NavigationResult, RobotNavigation
 from tests.cdp import CDPError, Chromium
-from tests.clients.viewer_harness import Viewer
+from tests.clients.viewer_harness import Viewer, colour_count
 from tests.conftest import Daemon
 
 ACTIVE = ("planning", "driving", "waiting", "yielding", "blocked", "overridden")
@@ -173,12 +175,13 @@ def test_presence_is_the_truth_for_navigation_too() -> None:
     state = present("a")
     page = NavCursor()
     state.on_navigation(summary(row("a"), row("ghost")))
+    state.on_plan(path("a", [(0, 0), (1, 2)]))
     state.on_plan(path("ghost", [(0, 0), (1, 1)]))
     state.on_nav_result(result("ghost"))
     msg = message(state.nav_updates(page))
-    assert set(msg["goals"]) == {"a"} and msg["paths"] == {}
+    assert set(msg["goals"]) == {"a"} and set(msg["paths"]) == {"a"}
     state.on_presence("a", False)
-    assert message(state.nav_updates(page)) == {"type": "nav", "goals": {"a": None}, "paths": {}}
+    assert message(state.nav_updates(page)) == {"type": "nav", "goals": {"a": None}, "paths": {"a": None}}
     assert not state.nav.goals and not state.nav.paths
 
 
@@ -266,6 +269,23 @@ def test_the_page_draws_a_goal_its_path_and_state_until_it_ends(
     assert browser.evaluate("document.getElementById('sel-goal').textContent").startswith("1.50, 0.50, 57°")
     assert not browser.evaluate("document.getElementById('navigation').hidden")  # the legend
     assert browser.evaluate("viewerStats.navCounts()")[nav["state"]] >= 1
+    # drawn: the selected robot's goal cross in its colour where the page puts the goal
+    browser.evaluate("document.getElementById('show-scans').click()")
+    frames = browser.evaluate("viewerStats.frames")
+    browser.wait_for(f"viewerStats.frames > {frames} + 2 && viewerStats.scans === 0")
+    img = Image.open(io.BytesIO(browser.screenshot()))
+    dpr = browser.evaluate("window.devicePixelRatio")
+    gx, gy = browser.evaluate("viewerStats.toScreen(1.5, 0.5)")
+    rgb = browser.evaluate("viewerStats.colorOf('tb3_0')")
+    assert colour_count(img, (gx * dpr, gy * dpr), 4 * dpr, rgb) >= 6
+    # the Paths box off and nothing selected: no goal drawn
+    browser.evaluate("document.getElementById('show-paths').click(); viewerStats.select(null)")
+    frames = browser.evaluate("viewerStats.frames")
+    c.step(1)
+    browser.wait_for(f"viewerStats.frames > {frames} + 2")
+    img = Image.open(io.BytesIO(browser.screenshot()))
+    assert colour_count(img, (gx * dpr, gy * dpr), 4 * dpr, rgb) == 0
+    browser.evaluate("document.getElementById('show-paths').click(); viewerStats.select('tb3_0')")
 
     for _ in range(200):  # drive both goals to their end
         if goal.done and early.done:

@@ -11,6 +11,9 @@ import sys
 import time
 from dataclasses import dataclass
 
+import numpy as np
+from PIL import Image
+
 from tests.conftest import ROOT, Daemon
 
 
@@ -56,3 +59,11 @@ def start_viewer(daemon: Daemon, *args: str) -> Viewer:
         proc.kill()
         raise RuntimeError(f"fleet-view did not start: {line}{proc.communicate()[0]}")
     return Viewer(proc, line.split()[1])
+
+
+def colour_count(img: Image.Image, centre: tuple[float, float], half: float, rgb: tuple[int, ...]) -> int:
+    """Pixels within ``half`` px of ``centre`` that are ``rgb`` (within 8 per channel)."""
+    a = np.asarray(img.convert("RGB"), dtype=np.int16)
+    x0, y0 = max(0, round(centre[0] - half)), max(0, round(centre[1] - half))
+    box = a[y0 : round(centre[1] + half) + 1, x0 : round(centre[0] + half) + 1]
+    return int(np.sum(np.all(np.abs(box - np.asarray(rgb[:3])) <= 8, axis=-1)))

@@ -116,6 +116,10 @@
     S.ws = ws;
     ws.onopen = () => {
       stats.connected = true;
+      // a new connection starts from nothing: the server sends every goal and path again,
+      // and goals that ended while the page was away must not linger
+      S.nav.clear();
+      S.paths.clear();
       sendView(true);
       updateStatus();
     };
