@@ -365,19 +365,35 @@ class FleetClient:
                 found[path.robot] = path
         return found
 
-    def on_navigation(self, callback: Callable[[FleetNavigation], None]) -> Subscription:
-        """Call ``callback`` with the fleet's navigation summary (2 Hz of sim time: every
-        robot with a goal, its state and goal, and goals that ended since)."""
+    def _on_decoded(self, key: str, type_: type[T], callback: Callable[[T], None]) -> Subscription:
+        """``callback`` with each sample on ``key`` that decodes as ``type_`` (others are dropped,
+        whatever their bytes: protocol.codec.decode)."""
 
         def on_sample(sample: zenoh.Sample) -> None:
             try:
-                callback(decode(sample.payload.to_bytes(), FleetNavigation, MAX_REPLY_BYTES))
+                msg = decode(sample.payload.to_bytes(), type_, MAX_REPLY_BYTES)
             except FleetError:
-                pass
+                return
+            callback(msg)
 
-        sub = Subscription(self.session.declare_subscriber(self.keys.fleet_navigation, on_sample))
+        sub = Subscription(self.session.declare_subscriber(key, on_sample))
         self._subs.append(sub)
         return sub
+
+    def on_navigation(self, callback: Callable[[FleetNavigation], None]) -> Subscription:
+        """Call ``callback`` with the fleet's navigation summary (2 Hz of sim time: every
+        robot with a goal, its state and goal, and goals that ended since)."""
+        return self._on_decoded(self.keys.fleet_navigation, FleetNavigation, callback)
+
+    def on_plans(self, callback: Callable[[NavigationPath], None], robot: str = "*") -> Subscription:
+        """Call ``callback`` with each path a robot plans (``robot`` a namespace or ``*``);
+        an empty path when its goal ended. :meth:`plans` asks for the current ones."""
+        return self._on_decoded(self.keys.plan(robot), NavigationPath, callback)
+
+    def on_navigation_results(self, callback: Callable[[NavigationResult], None], robot: str = "*") -> Subscription:
+        """Call ``callback`` with the result of each goal that ends (``robot`` a namespace or
+        ``*``): put always, once per goal, where ``P/navigation`` is put only while listened to."""
+        return self._on_decoded(self.keys.navigate_result(robot), NavigationResult, callback)
 
     def robots(self) -> list[RobotRecord]:
         """Every robot of the fleet, whichever daemon runs it (each daemon lists its own)."""

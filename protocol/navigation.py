@@ -160,6 +160,10 @@ class RobotNavigation(msgspec.Struct, kw_only=True):
     distance_remaining: float
     other: str = ""
     reason: str = ""  # of a goal that ended since the last message
+    #: the goal's ``tolerance`` (m) and whether it asks for a heading (``goal.yaw`` is 0 when
+    #: it does not): what a viewer needs to draw the goal without asking each robot's state
+    tolerance: float = DEFAULT_TOLERANCE_M
+    has_yaw: bool = False
 
 
 class FleetNavigation(msgspec.Struct, kw_only=True):

@@ -2,7 +2,8 @@
 
 The page opens a websocket to ``/ws``. The server sends the world once, then a frame at a
 fixed rate built for the page's current view (see :mod:`clients.viewer.state` for the
-format). The page acknowledges each frame as it takes it in; while ``WINDOW`` frames are
+format), each preceded by what changed in the robots' navigation if anything did
+(:mod:`clients.viewer.navigation`). The page acknowledges each frame as it takes it in; while ``WINDOW`` frames are
 unacknowledged the server skips ticks instead of queueing, so a slow page or link always gets
 the latest state, never a backlog.
 """
@@ -33,6 +34,7 @@ from clients.api import DEFAULT_TIMEOUT, FleetClient
 from clients.viewer.decimate import View
 from clients.viewer.feed import Feed
 from clients.viewer.live_map import LiveMap
+from clients.viewer.navigation import NavCursor
 from clients.viewer.snapshot import render, take_snapshot
 from clients.viewer.state import FleetState
 from protocol.errors import FleetError
@@ -90,6 +92,7 @@ class FrameStream:
         self.acked = 0
         self.skipped = 0
         self.meta_version = -1
+        self.nav = NavCursor()
 
     async def run(self) -> None:
         await self.ws.accept()
@@ -146,6 +149,9 @@ class FrameStream:
             if meta is not None:
                 await self.ws.send_text(meta.decode())
                 self.meta_version = version
+            nav = self.state.nav_updates(self.nav)
+            if nav is not None:
+                await self.ws.send_text(nav.decode())
             await self.ws.send_bytes(data)
 
 

@@ -1,6 +1,7 @@
 """Which scans and trails a viewer frame carries, and how thinned: the frame's budget shared
-among the robots in view, nearest the view's centre first. Pure functions of the robots'
-poses and the page's view (no state, no I/O), so each rule is tested on its own."""
+among the robots in view, nearest the view's centre first; and how far a planned path is
+thinned before it goes to pages. Pure functions of the robots' poses, the page's view and the
+path (no state, no I/O), so each rule is tested on its own."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import numpy as np
 import numpy.typing as npt
 
 F32 = npt.NDArray[np.float32]
+F64 = npt.NDArray[np.float64]
 
 LIDAR_RANGE_MAX = 3.5
 TRAIL_MAX_POINTS = 96
@@ -18,6 +20,9 @@ SCAN_POINT_BUDGET = 12_000  # beams per frame over all robots (before dropping n
 MAX_BEAM_STEP = 12  # thinnest scan sent: every 12th beam (30 of 360)
 TRAIL_POINT_BUDGET = 12_000
 MIN_TRAIL_POINTS = 6
+PATH_TOLERANCE_M = 0.02  # a planned path's points closer than this to the line kept are dropped
+PATH_MAX_POINTS = 128
+PATH_INPUT_MAX = 4096  # a longer path is evenly thinned to this many points before the rest
 
 
 @dataclass(frozen=True)
@@ -82,3 +87,45 @@ def pick_trails(poses: F32, view: View) -> tuple[list[int], int]:
         return [], 0
     per = max(MIN_TRAIL_POINTS, min(TRAIL_MAX_POINTS, TRAIL_POINT_BUDGET // len(picked)))
     return picked[: TRAIL_POINT_BUDGET // per], per
+
+
+def thin_path(
+    points: F64 | list[tuple[float, float]], tolerance: float = PATH_TOLERANCE_M, max_points: int = PATH_MAX_POINTS
+) -> F64:
+    """A planned path with the points a drawing does not need dropped: those within
+    ``tolerance`` m of the line through the points kept (Ramer-Douglas-Peucker), then, if more
+    than ``max_points`` are left, evenly thinned. Both ends are always kept; non-finite points
+    are dropped first, and a path of more than PATH_INPUT_MAX points is evenly thinned to that
+    first (a path is drawn, never trusted: this runs on a zenoh thread)."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if len(pts) > PATH_INPUT_MAX:  # bound the work on what the network sent
+        pts = pts[np.linspace(0, len(pts) - 1, PATH_INPUT_MAX).round().astype(np.intp)]
+    n = len(pts)
+    if n <= 2:
+        return pts
+    keep = np.zeros(n, dtype=bool)
+    keep[0] = keep[-1] = True
+    spans = [(0, n - 1)]
+    while spans:
+        a, b = spans.pop()
+        if b - a < 2:
+            continue
+        d = _distances_to_segment(pts[a + 1 : b], pts[a], pts[b])
+        k = int(np.argmax(d))
+        if d[k] > tolerance:
+            m = a + 1 + k
+            keep[m] = True
+            spans += [(a, m), (m, b)]
+    out = pts[keep]
+    if len(out) > max_points:
+        out = out[np.unique(np.linspace(0, len(out) - 1, max(2, max_points)).round().astype(np.intp))]
+    return out
+
+
+def _distances_to_segment(p: F64, a: F64, b: F64) -> F64:
+    ab = b - a
+    den = float(ab @ ab)
+    t = np.zeros(len(p)) if den == 0.0 else np.clip((p - a) @ ab / den, 0.0, 1.0)
+    d: F64 = np.hypot(*(p - a - t[:, None] * ab).T)
+    return d

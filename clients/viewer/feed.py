@@ -1,6 +1,6 @@
 """The viewer's feed: a :class:`FleetState` kept current from a daemon over a
-:class:`~clients.api.FleetClient` (the world, presence, the fleet topics, and a thread that
-asks for the records of robots that appeared)."""
+:class:`~clients.api.FleetClient` (the world, presence, the fleet topics, navigation, and a
+thread that asks for the records of robots that appeared and for the paths they follow)."""
 
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ log = logging.getLogger(__name__)
 
 
 class Feed:
-    """Connects a :class:`FleetState` to a :class:`FleetClient`: the world, presence, odom and
-    scan callbacks, and a thread that fetches the records of robots that appeared (a query,
-    so never from a zenoh callback)."""
+    """Connects a :class:`FleetState` to a :class:`FleetClient`: the world, presence, odom,
+    scan and navigation callbacks, and a thread that fetches the records of robots that
+    appeared and then the paths they already follow (queries, so never from a zenoh callback)."""
 
     def __init__(self, client: FleetClient, state: FleetState) -> None:
         self.client = client
@@ -35,6 +35,11 @@ class Feed:
         # be 35 000 messages a second at 1 000 robots (each ~10 us of this process's CPU)
         self._subs.append(self.client.on_fleet_odom(self.state.on_fleet_odom))
         self._subs.append(self.client.on_fleet_scans(self.state.on_fleet_scans))
+        # navigation: the summary (2 Hz, put only while somebody listens), each path when it is
+        # planned and each goal's end; the paths of goals under way are asked for by the thread
+        self._subs.append(self.client.on_navigation(self.state.on_navigation))
+        self._subs.append(self.client.on_plans(self.state.on_plan))
+        self._subs.append(self.client.on_navigation_results(self.state.on_nav_result))
         self._thread.start()
 
     def add_live_map(self) -> LiveMap:
@@ -61,9 +66,18 @@ class Feed:
             except FleetError as e:
                 log.warning("could not list robots: %s", e)
                 self._stop.wait(0.5)
+            else:
+                self._fetch_plans()
             if self.state.missing_records():
                 self._stop.wait(0.2)
                 wanted.set()
+
+    def _fetch_plans(self) -> None:
+        """The paths of goals already under way (a viewer opened mid-goal, robots that came)."""
+        try:
+            self.state.apply_plans(self.client.plans())
+        except FleetError as e:
+            log.debug("could not ask for the robots' paths: %s", e)
 
     def close(self) -> None:
         self._stop.set()

@@ -19,7 +19,9 @@ A frame is one binary websocket message (little-endian)::
     f32[2T]  trail points, oldest first (a drawing continues the line to the robot's pose)
 
 The robots' static description (namespace, name, model, footprint, colour) travels in a
-JSON ``meta`` message, sent before the first frame that needs a new version of it.
+JSON ``meta`` message, sent before the first frame that needs a new version of it; their goals,
+navigation states and planned paths in JSON ``nav`` messages of what changed
+(:mod:`clients.viewer.navigation`), sent before the frame when something did.
 """
 
 from __future__ import annotations
@@ -40,10 +42,13 @@ from clients.viewer.decimate import (
     View,
     pick_scans,
     pick_trails,
+    thin_path,
 )
+from clients.viewer.navigation import NavBoard, NavCursor
 from clients.viewer.robot import TRAIL_MIN_STEP, TRAIL_SECONDS, KeptScan, RobotState
 from protocol.control import RobotRecord, WorldInfo
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry
+from protocol.navigation import FleetNavigation, NavigationPath, NavigationResult
 
 log = logging.getLogger(__name__)
 
@@ -96,12 +101,14 @@ class FrameStats:
 
 
 class FleetState:
-    """World, robots, poses, scans and trails; written by zenoh threads, read by frames."""
+    """World, robots, poses, scans, trails and navigation; written by zenoh threads, read by
+    frames."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self.world: WorldInfo | None = None
         self._robots: dict[str, RobotState] = {}
+        self.nav = NavBoard()  # under self._lock, for present robots only
         self._order: list[RobotState] = []  # robots with a record, natural order of name
         self._version = 0
         self._meta_json = b""
@@ -120,6 +127,7 @@ class FleetState:
                     self._robots[ns] = RobotState(ns)
                     self.records_wanted.set()
             elif self._robots.pop(ns, None) is not None:
+                self.nav.forget(ns)
                 self._reorder()
 
     def on_odom(self, ns: str, msg: Odometry) -> None:
@@ -199,6 +207,42 @@ class FleetState:
             return
         self._scan_seq += 1
         r.scan = KeptScan(self._scan_seq, t, ranges, angle_min, inc, range_min, range_max)
+
+    # -- navigation: goals, states and paths (clients/viewer/navigation.py) ------------------
+
+    def on_navigation(self, msg: FleetNavigation) -> None:
+        """The fleet's navigation summary (``P/navigation``)."""
+        now = time.monotonic()
+        with self._lock:
+            for entry in msg.robots:
+                if entry.robot in self._robots:
+                    self.nav.summary_row(entry.robot, entry, now)
+
+    def on_plan(self, path: NavigationPath) -> None:
+        """A robot's path (``P/<ns>/plan``), thinned before the lock is taken."""
+        thinned = thin_path(path.points)
+        with self._lock:
+            if path.robot in self._robots:
+                self.nav.plan(path.robot, path, thinned)
+
+    def on_nav_result(self, result: NavigationResult) -> None:
+        """A goal ended (``P/<ns>/navigate/result``)."""
+        now = time.monotonic()
+        with self._lock:
+            if result.robot in self._robots:
+                self.nav.result(result.robot, result, now)
+
+    def apply_plans(self, plans: dict[str, NavigationPath]) -> None:
+        """The current paths, as a get returned them (a viewer opened mid-goal)."""
+        thinned = {ns: (p, thin_path(p.points)) for ns, p in plans.items() if p.robot == ns}
+        with self._lock:
+            self.nav.initial_plans({ns: v for ns, v in thinned.items() if ns in self._robots})
+
+    def nav_updates(self, cursor: NavCursor) -> bytes | None:
+        """The ``nav`` message a page with ``cursor`` needs, or None (see NavBoard.updates)."""
+        with self._lock:
+            self.nav.prune(time.monotonic())
+            return self.nav.updates(cursor)
 
     # -- records (name, model, footprint), fetched off the zenoh threads --------------------
 

@@ -63,5 +63,12 @@ def summary_row(
     robot: str, goal_id: str, state: str, goal: NavigateRequest, left: float, reason: str
 ) -> RobotNavigation:
     return RobotNavigation(
-        robot=robot, goal_id=goal_id, state=state, goal=goal_pose(goal), distance_remaining=left, reason=reason
+        robot=robot,
+        goal_id=goal_id,
+        state=state,
+        goal=goal_pose(goal),
+        distance_remaining=left,
+        reason=reason,
+        tolerance=goal.tolerance,
+        has_yaw=goal.yaw is not None,
     )

@@ -6,16 +6,12 @@ from __future__ import annotations
 import io
 import json
 import math
-import os
-import selectors
-import signal
 import subprocess
-import sys
 import threading
 import time
 import urllib.error
 import urllib.request
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,7 +28,8 @@ from clients.viewer.robot import LIDAR_OFFSET
 from clients.viewer.state import FleetState, color_index, color_rgb
 from protocol.control import Pose2D, RobotRecord
 from protocol.messages import FleetOdometry, FleetScans, Header, LaserScan, Odometry, Quaternion, Time
-from tests.cdp import CHROMIUM, Chromium
+from tests.cdp import Chromium
+from tests.clients.viewer_harness import Viewer, colour_count, fleet_view
 from tests.conftest import ROOT, Daemon
 
 #: The four robots of turtlebot3_simulations' multi_robot.launch.py.
@@ -237,67 +234,6 @@ def test_trail_is_decimated_and_ages_out() -> None:
 # -- processes ------------------------------------------------------------------------------
 
 
-@dataclass
-class Viewer:
-    proc: subprocess.Popen[str]
-    url: str
-
-    def stop(self, sig: int = signal.SIGTERM, timeout: float = 5.0) -> tuple[int, float]:
-        t0 = time.monotonic()
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc.stdout:
-            self.proc.stdout.close()
-        return int(self.proc.returncode), time.monotonic() - t0
-
-
-def fleet_view(daemon: Daemon, *args: str) -> list[str]:
-    return [sys.executable, "-m", "clients.viewer.app", "-e", daemon.endpoint, "--prefix", daemon.prefix, *args]
-
-
-@pytest.fixture
-def viewer_factory() -> Iterator[Callable[..., Viewer]]:
-    started: list[Viewer] = []
-
-    def start(daemon: Daemon, *args: str) -> Viewer:
-        proc = subprocess.Popen(
-            fleet_view(daemon, "--port", "0", *args),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            cwd=ROOT,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        )
-        assert proc.stdout is not None
-        sel = selectors.DefaultSelector()
-        sel.register(proc.stdout, selectors.EVENT_READ)
-        line = proc.stdout.readline() if sel.select(timeout=15) else ""
-        sel.close()
-        if "http://" not in line:
-            proc.kill()
-            raise RuntimeError(f"fleet-view did not start: {line}{proc.communicate()[0]}")
-        v = Viewer(proc, line.split()[1])
-        started.append(v)
-        return v
-
-    yield start
-    for v in started:
-        v.stop()
-
-
-@pytest.fixture
-def browser(tmp_path: Path) -> Iterator[Chromium]:
-    if CHROMIUM is None:
-        pytest.skip("headless Chromium not found (`chromium` is not on PATH; .ci/run installs it)")
-    with Chromium(tmp_path / "chromium", 1280, 800) as b:
-        yield b
-
-
 def spawn_multi_robot(daemon: Daemon) -> list[tuple[str, float, float, float]]:
     c = daemon.client()
     robots = []
@@ -305,14 +241,6 @@ def spawn_multi_robot(daemon: Daemon) -> list[tuple[str, float, float, float]]:
         c.spawn(f"tb3_{i}", x, y, yaw, model="waffle" if i == 1 else "burger")
         robots.append((f"tb3_{i}", x, y, yaw))
     return robots
-
-
-def colour_count(img: Image.Image, centre: tuple[float, float], half: float, rgb: tuple[int, ...]) -> int:
-    """Pixels within ``half`` px of ``centre`` that are ``rgb`` (within 8 per channel)."""
-    a = np.asarray(img.convert("RGB"), dtype=np.int16)
-    x0, y0 = max(0, round(centre[0] - half)), max(0, round(centre[1] - half))
-    box = a[y0 : round(centre[1] + half) + 1, x0 : round(centre[0] + half) + 1]
-    return int(np.sum(np.all(np.abs(box - np.asarray(rgb[:3])) <= 8, axis=-1)))
 
 
 # -- snapshot ---------------------------------------------------------------------------------

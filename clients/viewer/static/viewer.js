@@ -13,6 +13,18 @@
     heading: "#fafafa", text: "#e2e8f0", muted: "#8c9aaa", select: "#ffffff",
   };
   const ROBOTS_PAD = 1.5; // m around the robots when the world has no geometry to frame
+  // Navigation states (protocol/navigation.py): the colour of a robot's badge in the list, of
+  // the legend, and of the ring round a robot that is navigating but not simply driving.
+  const NAV_STATES = ["planning", "driving", "waiting", "yielding", "blocked", "overridden", "reached", "failed"];
+  const NAV_COLORS = {
+    planning: "#9fb3c8", driving: "#06d6a0", waiting: "#ffd166", yielding: "#fb8500",
+    blocked: "#ff595e", overridden: "#f72585", reached: "#52f2a0", failed: "#ff595e",
+  };
+  const NAV_RING = new Set(["planning", "waiting", "yielding", "blocked", "overridden"]);
+  const FLASH_MS = 1200; // a robot whose goal ended flashes this long (green reached, red failed)
+  const PATHS_FEW = 50; // up to this many paths they are drawn stronger
+  const PATH_OFF_M = 0.3; // a robot farther than this from its path is not joined to it
+  const navColor = (state) => NAV_COLORS[state] || COLORS.muted;
   const LABEL_MAX = 400; // robots in view above which labels are drawn only when zoomed in
 
   // ---- state ------------------------------------------------------------------------------
@@ -30,16 +42,19 @@
     fitted: null,         // robots rectangle last auto-fitted (obstacle-free worlds)
     selected: null,
     follow: false,
-    opts: { scans: true, trails: true, labels: true },
+    opts: { scans: true, trails: true, labels: true, paths: true },
     dirty: true,
     ws: null,
     map: null,            // the live map layer (fleet-view --map): {img, x0, y0, res}
+    nav: new Map(),       // ns -> {goalId, state, x, y, yaw|null, tol, other, reason, ended, endedAt}
+    paths: new Map(),     // ns -> {pts: [x0, y0, ...], n, rem: length from point j to the goal, k: progress}
+    navSeen: false,       // a nav message came: the legend shows from then on
   };
 
   const stats = {
     frames: 0, fps: 0, msgs: 0, robots: 0, scans: 0, scanPoints: 0, trails: 0, trailPoints: 0,
     beamStep: 1, bytes: 0, drawMs: 0, simTime: 0, seq: 0, skipped: 0, connected: false,
-    world: "", metaVersion: -1,
+    world: "", metaVersion: -1, navMsgs: 0,
   };
   const drawTimes = [];
   window.viewerStats = stats;
@@ -81,6 +96,17 @@
   stats.names = () => (S.meta ? S.meta.robots.map((r) => r[0]) : []);
   stats.select = (ns) => select(ns);
   stats.view = () => ({ ...S.view, width: S.width, height: S.height });
+  stats.nav = (ns) => {
+    const g = S.nav.get(ns), p = S.paths.get(ns);
+    if (!g && !p) return null;
+    return {
+      goalId: g ? g.goalId : "", state: g ? g.state : null, ended: g ? g.ended : false,
+      goal: g ? { x: g.x, y: g.y, yaw: g.yaw, tolerance: g.tol } : null,
+      other: g ? g.other : "", reason: g ? g.reason : "",
+      path: p ? p.n : 0, pathPoints: p ? Array.from(p.pts) : [], left: navLeft(ns),
+    };
+  };
+  stats.navCounts = () => navCounts();
 
   // ---- connection -------------------------------------------------------------------------
   function connect() {
@@ -90,6 +116,10 @@
     S.ws = ws;
     ws.onopen = () => {
       stats.connected = true;
+      // a new connection starts from nothing: the server sends every goal and path again,
+      // and goals that ended while the page was away must not linger
+      S.nav.clear();
+      S.paths.clear();
       sendView(true);
       updateStatus();
     };
@@ -104,6 +134,7 @@
         const msg = JSON.parse(ev.data);
         if (msg.type === "world") onWorld(msg);
         else if (msg.type === "meta") onMeta(msg);
+        else if (msg.type === "nav") onNav(msg);
         return;
       }
       const f = decodeFrame(ev.data);
@@ -182,6 +213,115 @@
     S.frame = null; // frames of the old version no longer line up
     renderList();
     S.dirty = true;
+  }
+
+  // ---- navigation: goals, states and paths (clients/viewer/navigation.py sends what changed) ----
+  function onNav(msg) {
+    stats.navMsgs += 1;
+    S.navSeen = true;
+    const now = performance.now();
+    const changed = [];
+    for (const [ns, row] of Object.entries(msg.goals || {})) {
+      changed.push(ns);
+      if (!Array.isArray(row) || row.length < 6 || !Number.isFinite(row[2]) || !Number.isFinite(row[3])) {
+        S.nav.delete(ns);
+        continue;
+      }
+      const [goalId, state, x, y, yaw, tol, other, reason] = row;
+      const old = S.nav.get(ns);
+      const ended = state === "reached" || state === "failed";
+      const again = old && old.ended && old.goalId === goalId;
+      S.nav.set(ns, {
+        goalId: String(goalId), state: String(state), x, y,
+        yaw: Number.isFinite(yaw) ? yaw : null, tol: Number.isFinite(tol) ? Math.max(0, tol) : 0,
+        other: other ? String(other) : "", reason: reason ? String(reason) : "",
+        ended, endedAt: ended ? (again ? old.endedAt : now) : null,
+      });
+    }
+    for (const [ns, flat] of Object.entries(msg.paths || {})) {
+      const p = Array.isArray(flat) ? makePath(flat) : null;
+      if (p) S.paths.set(ns, p);
+      else S.paths.delete(ns);
+    }
+    for (const ns of changed) updateListItem(ns);
+    renderLegend();
+    updateSelected();
+    S.dirty = true;
+  }
+
+  function makePath(flat) {
+    const n = flat.length >> 1;
+    if (n < 2) return null;
+    const pts = new Float64Array(2 * n);
+    for (let i = 0; i < 2 * n; i++) {
+      pts[i] = +flat[i];
+      if (!Number.isFinite(pts[i])) return null;
+    }
+    const rem = new Float64Array(n);
+    for (let j = n - 2; j >= 0; j--) rem[j] = rem[j + 1] + Math.hypot(pts[2 * j + 2] - pts[2 * j], pts[2 * j + 3] - pts[2 * j + 1]);
+    return { pts, n, rem, k: 0 };
+  }
+
+  // The point of segment a-b nearest to (x, y): [t along it, distance].
+  function onSegment(x, y, ax, ay, bx, by) {
+    const dx = bx - ax, dy = by - ay, l2 = dx * dx + dy * dy;
+    const t = l2 > 0 ? Math.min(1, Math.max(0, ((x - ax) * dx + (y - ay) * dy) / l2)) : 0;
+    return [t, Math.hypot(x - ax - t * dx, y - ay - t * dy)];
+  }
+
+  // Where the robot is along its path: the nearest segment from the one it was on, a few
+  // ahead at most (it does not go back), and the nearest point of it (p.px, p.py, p.off m
+  // away). The drawing starts there, not at the path's start; the distance left is measured
+  // from there.
+  function advance(p, x, y) {
+    let best = p.k, bestD = Infinity, bestT = 0;
+    const last = Math.min(p.n - 2, p.k + 40);
+    for (let j = p.k; j <= last; j++) {
+      const [t, d] = onSegment(x, y, p.pts[2 * j], p.pts[2 * j + 1], p.pts[2 * j + 2], p.pts[2 * j + 3]);
+      if (d <= bestD) { best = j; bestD = d; bestT = t; }
+    }
+    p.k = best;
+    const j = 2 * best;
+    p.px = p.pts[j] + bestT * (p.pts[j + 2] - p.pts[j]);
+    p.py = p.pts[j + 1] + bestT * (p.pts[j + 3] - p.pts[j + 1]);
+    p.off = bestD;
+  }
+
+  function navLeft(ns) {
+    const p = S.paths.get(ns);
+    const i = S.index.get(ns);
+    const pose = i === undefined ? null : robotPose(i);
+    if (!p || !pose) return null;
+    advance(p, pose.x, pose.y);
+    const j = p.k + 1;
+    return p.off + Math.hypot(p.pts[2 * j] - p.px, p.pts[2 * j + 1] - p.py) + p.rem[j];
+  }
+
+  function navCounts() {
+    const counts = {};
+    for (const g of S.nav.values()) counts[g.state] = (counts[g.state] || 0) + 1;
+    return counts;
+  }
+
+  function navText(g) {
+    let t = g.state;
+    if (g.other) t += ` (${g.other})`;
+    if (g.state === "failed" && g.reason && g.reason !== "failed") t += `: ${g.reason}`;
+    return t;
+  }
+
+  function renderLegend() {
+    $("navigation").hidden = !S.navSeen;
+    const counts = navCounts();
+    let active = 0;
+    for (const g of S.nav.values()) if (!g.ended) active += 1;
+    $("nav-count").textContent = active;
+    const known = new Set(NAV_STATES);
+    const states = NAV_STATES.concat(Object.keys(counts).filter((k) => !known.has(k)).sort());
+    $("nav-legend").innerHTML = states.map((st) =>
+      `<span class="legend-item${counts[st] ? "" : " none"}">` +
+      `<span class="swatch" style="background:${navColor(st)}"></span>${escapeHtml(st)} ${counts[st] || 0}</span>`,
+    ).join("");
   }
 
   let viewTimer = null;
@@ -320,7 +460,7 @@
   // toolbar and keys
   $("fit-world").onclick = () => { S.autoFit = true; fitContent(); };
   $("fit-robots").onclick = () => { S.autoFit = false; fitRect(robotsRect()); };
-  for (const k of ["scans", "trails", "labels"]) {
+  for (const k of ["scans", "trails", "labels", "paths"]) {
     $(`show-${k}`).onchange = (e) => { S.opts[k] = e.target.checked; S.dirty = true; sendView(true); };
   }
   $("sel-close").onclick = () => select(null);
@@ -363,11 +503,24 @@
     const shown = q ? robots.filter((r) => r[0].toLowerCase().includes(q) || r[1].toLowerCase().includes(q)) : robots;
     const limit = 2000;
     $("robot-list").innerHTML = shown.slice(0, limit).map((r) => {
-      const label = r[1] === r[0] ? r[1] : `${r[1]} <span class="model">/${r[0]}</span>`;
+      const label = r[1] === r[0] ? escapeHtml(r[1]) : `${escapeHtml(r[1])} <span class="model">/${escapeHtml(r[0])}</span>`;
+      const g = S.nav.get(r[0]);
+      const badge = g ? `<span class="nav-state" style="color:${navColor(g.state)}">${escapeHtml(g.state)}</span>` :
+        `<span class="nav-state"></span>`;
       return `<li data-ns="${escapeHtml(r[0])}" class="${r[0] === S.selected ? "sel" : ""}">` +
-        `<span><span class="swatch" style="background:${robotColor(r)}"></span>${label}</span>` +
+        `<span><span class="swatch" style="background:${robotColor(r)}"></span>${label}${badge}</span>` +
         `<span class="model">${escapeHtml(r[2])}</span></li>`;
     }).join("") + (shown.length > limit ? `<li class="muted">… ${shown.length - limit} more</li>` : "");
+  }
+
+  // One robot's navigation badge in the list (a nav message changed its row).
+  function updateListItem(ns) {
+    const li = $("robot-list").querySelector(`li[data-ns="${CSS.escape(ns)}"]`);
+    const badge = li && li.querySelector(".nav-state");
+    if (!badge) return;
+    const g = S.nav.get(ns);
+    badge.textContent = g ? g.state : "";
+    badge.style.color = g ? navColor(g.state) : "";
   }
 
   const fmt = (v, d) => (Number.isFinite(v) ? v.toFixed(d) : "—");
@@ -388,6 +541,13 @@
     $("sel-yaw").textContent = `${fmt(p.yaw, 3)} rad (${fmt((p.yaw * 180) / Math.PI, 1)}°)`;
     $("sel-v").textContent = `${fmt(p.v, 3)} m/s`;
     $("sel-w").textContent = `${fmt(p.w, 3)} rad/s`;
+    const g = S.nav.get(ns);
+    $("sel-nav").textContent = g ? navText(g) : "—";
+    $("sel-nav").style.color = g ? navColor(g.state) : "";
+    const heading = g && g.yaw !== null ? `, ${fmt((g.yaw * 180) / Math.PI, 0)}°` : "";
+    $("sel-goal").textContent = g && !g.ended ? `${fmt(g.x, 2)}, ${fmt(g.y, 2)}${heading} ±${fmt(g.tol, 2)} m` : "—";
+    const left = g && !g.ended ? navLeft(ns) : null;
+    $("sel-left").textContent = left === null ? "—" : `${fmt(left, 2)} m`;
   }
 
   function updateStatus() {
@@ -551,6 +711,7 @@
         paths.forEach((p, c) => { ctx.strokeStyle = pal[c]; ctx.stroke(p); });
         ctx.globalAlpha = 1;
       }
+      drawPathsAndGoals(f, meta);
       // scans
       if (S.opts.scans && f.scans) {
         const paths = groupPaths();
@@ -603,6 +764,7 @@
       ctx.lineWidth = Math.min(3, Math.max(1, scale / 60));
       ctx.lineCap = "round";
       ctx.stroke(heads);
+      drawNavRings(visible, f, meta);
       // selection ring
       const sel = S.selected !== null ? S.index.get(S.selected) : undefined;
       if (sel !== undefined) {
@@ -634,13 +796,119 @@
 
   function labelRobot(i, f, meta, scale) {
     const row = meta.robots[i];
-    const text = row[1] === row[0] ? row[1] : `${row[1]} (${row[0]})`;
+    const g = S.nav.get(row[0]);
+    const name = row[1] === row[0] ? row[1] : `${row[1]} (${row[0]})`;
+    const text = g && g.state !== "driving" ? `${name} · ${g.state}` : name; // the exceptions
     const r = S.reach[row[3]] * scale;
     const x = sx(f.poses[5 * i]) + r + 3, y = sy(f.poses[5 * i + 1]) - r;
     ctx.fillStyle = COLORS.bg;
     ctx.fillText(text, x + 1, y + 1);
     ctx.fillStyle = COLORS.text;
     ctx.fillText(text, x, y);
+  }
+
+  // Every navigating robot's path, from the robot on, and its goal: the tolerance circle, a
+  // cross at the goal and, if the goal asks for a heading, an arrow. Faint for all (the Paths
+  // box hides them), strong and on top for the selected robot.
+  function drawPathsAndGoals(f, meta) {
+    if (!S.nav.size && !S.paths.size) return;
+    const pal = meta.palette;
+    const scale = S.view.scale;
+    const all = S.opts.paths;
+    const lines = groupPaths(), marks = groupPaths();
+    const sel = new Path2D();
+    let selIndex;
+    for (const [ns, p] of S.paths) {
+      const i = S.index.get(ns);
+      if (i === undefined || (!all && ns !== S.selected)) continue;
+      const x = f.poses[5 * i], y = f.poses[5 * i + 1];
+      advance(p, x, y);
+      const path = ns === S.selected ? sel : lines[meta.robots[i][4] % pal.length];
+      // from the robot when it is on its path; from the path's point nearest to it when it
+      // is off it (making way, going round something): no line through a wall to get there
+      if (p.off <= PATH_OFF_M) path.moveTo(sx(x), sy(y));
+      else path.moveTo(sx(p.px), sy(p.py));
+      for (let j = p.k + 1; j < p.n; j++) path.lineTo(sx(p.pts[2 * j]), sy(p.pts[2 * j + 1]));
+      if (ns === S.selected) selIndex = i;
+    }
+    for (const [ns, g] of S.nav) {
+      const i = S.index.get(ns);
+      if (g.ended || i === undefined || (!all && ns !== S.selected)) continue;
+      goalMark(ns === S.selected ? sel : marks[meta.robots[i][4] % pal.length], g, scale);
+      if (ns === S.selected) selIndex = i;
+    }
+    ctx.lineJoin = "round";
+    ctx.lineCap = "round";
+    ctx.lineWidth = 1.5;
+    ctx.globalAlpha = S.paths.size <= PATHS_FEW ? 0.55 : 0.3;
+    lines.forEach((p, c) => { ctx.strokeStyle = pal[c]; ctx.stroke(p); });
+    marks.forEach((p, c) => { ctx.strokeStyle = pal[c]; ctx.stroke(p); });
+    ctx.globalAlpha = 1;
+    if (selIndex !== undefined) {
+      ctx.lineWidth = 4;
+      ctx.strokeStyle = COLORS.bg;
+      ctx.stroke(sel);
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = robotColor(meta.robots[selIndex]);
+      ctx.stroke(sel);
+    }
+  }
+
+  function goalMark(m, g, scale) {
+    const cx = sx(g.x), cy = sy(g.y);
+    const r = Math.max(g.tol * scale, 3);
+    m.moveTo(cx + r, cy);
+    m.arc(cx, cy, r, 0, 2 * Math.PI);
+    const c = Math.max(3, Math.min(7, r * 0.5));
+    m.moveTo(cx - c, cy); m.lineTo(cx + c, cy);
+    m.moveTo(cx, cy - c); m.lineTo(cx, cy + c);
+    if (g.yaw !== null) {
+      const len = Math.max(r + 8, 16), a = -g.yaw; // screen y points down
+      const ex = cx + Math.cos(a) * len, ey = cy + Math.sin(a) * len;
+      m.moveTo(cx, cy); m.lineTo(ex, ey);
+      for (const s of [-0.45, 0.45]) {
+        m.moveTo(ex, ey);
+        m.lineTo(ex - 7 * Math.cos(a + s), ey - 7 * Math.sin(a + s));
+      }
+    }
+  }
+
+  // A ring in the state's colour round each robot in view that navigates but is not simply
+  // driving (planning, waiting, yielding, blocked, overridden), and a fading flash round one
+  // whose goal just ended.
+  function drawNavRings(visible, f, meta) {
+    if (!S.nav.size) return;
+    const scale = S.view.scale, now = performance.now();
+    const rings = new Map();
+    let flashing = false;
+    for (const i of visible) {
+      const g = S.nav.get(meta.robots[i][0]);
+      if (!g) continue;
+      const x = sx(f.poses[5 * i]), y = sy(f.poses[5 * i + 1]);
+      const r = Math.max(S.reach[meta.robots[i][3]] * scale, 2) + 4;
+      if (g.ended) {
+        const t = (now - g.endedAt) / FLASH_MS;
+        if (t >= 1) continue;
+        flashing = true;
+        ctx.globalAlpha = 1 - t;
+        ctx.strokeStyle = navColor(g.state);
+        ctx.lineWidth = 3;
+        ctx.beginPath();
+        ctx.arc(x, y, r + 16 * t, 0, 2 * Math.PI);
+        ctx.stroke();
+        continue;
+      }
+      if (!NAV_RING.has(g.state)) continue;
+      const col = navColor(g.state);
+      let p = rings.get(col);
+      if (!p) rings.set(col, (p = new Path2D()));
+      p.moveTo(x + r, y);
+      p.arc(x, y, r, 0, 2 * Math.PI);
+    }
+    ctx.globalAlpha = 1;
+    ctx.lineWidth = 2;
+    for (const [col, p] of rings) { ctx.strokeStyle = col; ctx.stroke(p); }
+    if (flashing) S.dirty = true; // keep animating
   }
 
   function drawScaleBar() {
