@@ -134,6 +134,10 @@ class Floor:
                         best, best_d = r * g.width + q, d
         return best
 
+    def path(self, robot: NavRobot, here: tuple[float, float]) -> F64:
+        """The way it means to take from ``here`` on, by its current plan (what /plan shows)."""
+        return self._descent(robot, here)
+
     def _descent(self, robot: NavRobot, here: tuple[float, float]) -> F64:
         """The way down the distance field from the robot's cell (what /plan shows)."""
         m = self._m(robot)

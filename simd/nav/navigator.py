@@ -87,6 +87,8 @@ PATIENCE_S = 120.0
 DECIDE_WITHIN_CELLS = 0.6
 #: a step in which the robot's body would enter a cell another robot holds is not taken
 GUARD_S = 0.1
+#: a robot whose way runs this far (m) from the path it told has it told again, at most this often (s)
+OFF_PATH_M, RETELL_S = 0.3, 1.0
 #: the deceleration the guard counts on (the wheels manage 1 m/s^2) and its sampling step (m)
 GUARD_DECEL, GUARD_STEP_M = 0.8, 0.02
 #: nor one that brings two robots' circumscribed circles closer than this (m) to each other
@@ -417,7 +419,17 @@ class Navigator:
 
     def _tell_path(self, robot: NavRobot, path: F64 | None, now: float) -> None:
         if path is not None:
+            robot.told_path, robot.told_at = np.asarray(path, dtype=np.float64).reshape(-1, 2), now
             self._events.plans.append(path_message(robot.goal_id, robot.namespace, now, path))
+
+    def _retell_if_off(self, robot: NavRobot, way: list[tuple[float, float]], now: float) -> None:
+        """A robot whose way (the cells it holds and heads for) left the path it last told (it
+        made way for another, the traffic sent it round) has its path told again, from where
+        it is, at most every RETELL_S: what P/<ns>/plan shows is where it goes."""
+        if now - robot.told_at < RETELL_S or len(way) < 2 or len(robot.told_path) < 2:
+            return
+        if _off_path(robot.told_path, way[-1]) > OFF_PATH_M:
+            self._tell_path(robot, self.floor.path(robot, way[0]), now)
 
     # -- driving ---------------------------------------------------------------------------------
 
@@ -451,6 +463,7 @@ class Navigator:
         v = np.where(self._too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))
+            self._retell_if_off(robot, ways[k], now)
             lidar_stops = lidar_room[k] <= 0.01 and room[k] < 0.02 and lidar[k] < LOOK_AHEAD_M
             if lidar_stops and floor.yielding(robot) == FREE:
                 robot.state = "blocked"
@@ -683,6 +696,16 @@ class Navigator:
             self._events.fleet = FleetNavigation(
                 stamp=Time.from_seconds(now), robots=rows, work_seconds=round(self.work_seconds, 4)
             )
+
+
+def _off_path(path: F64, point: tuple[float, float]) -> float:
+    """How far ``point`` is from the polyline ``path`` (m)."""
+    a, b = path[:-1], path[1:]
+    ab = b - a
+    p = np.asarray(point, dtype=np.float64)
+    t = np.clip(np.einsum("ij,ij->i", p - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12), 0.0, 1.0)
+    nearest = a + t[:, None] * ab
+    return float(np.min(np.hypot(nearest[:, 0] - p[0], nearest[:, 1] - p[1])))
 
 
 def _first_step(way: list[tuple[float, float]]) -> tuple[float, float]:

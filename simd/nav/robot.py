@@ -47,6 +47,9 @@ class NavRobot:
     feedback: NavigationFeedback | None = None
     ended: str = ""  # how its goal ended, for the next fleet summary
     held_up_at_goal: bool = False  # (lanes) in its goal's cell, the goal point's cells held by others
+    #: the path last put on P/<ns>/plan, and when (a robot that leaves it gets a new one told)
+    told_path: F64 = field(default_factory=lambda: np.zeros((0, 2)))
+    told_at: float = -math.inf
 
     @property
     def active(self) -> bool:

@@ -193,3 +193,63 @@ def test_a_path_exists_exactly_when_a_flood_fill_finds_one(
         assert (r.status, r.reason) == ("failed", "no_path"), (text, r)
         x, y = where(sim, "a")
         assert math.hypot(x - sx, y - sy) < 0.05
+
+
+def test_the_told_path_is_where_the_robot_goes() -> None:
+    """In a crowded warehouse robots make way and go round each other: whatever the traffic
+    makes of its way, a robot stays near the last path it told (P/<ns>/plan)."""
+    from simd.core.models import MODELS
+    from worlds.warehouse import warehouse_for_robots
+
+    text = warehouse_for_robots(20)
+    world = world_from_movingai(parse_movingai(text, "w.map"), "w.map", CELL)
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots, NavConfig(lanes=True, cell=CELL))
+    burger = MODELS["burger"]
+    g = nav.floor.graph
+    points = g.centres(np.flatnonzero(g.standable(burger)))
+    rng = np.random.default_rng(3)
+    names: list[str] = []
+    for i in rng.permutation(len(points)).tolist():
+        x, y = points[i]
+        if names and np.hypot(sim.robots.x - x, sim.robots.y - y).min() < 0.75:
+            continue
+        names.append(f"r{len(names)}")
+        sim.spawn(SpawnRequest(name=names[-1], x=float(x), y=float(y)))
+        if len(names) == 20:
+            break
+
+    def send(name: str) -> None:
+        x, y = points[rng.integers(len(points))]
+        nav.goal(name, burger, NavigateRequest(x=float(x), y=float(y), tolerance=0.1), sim.time)
+
+    for name in names:
+        send(name)
+    told: dict[str, np.ndarray] = {}
+    worst, ended = 0.0, 0
+    for _ in range(30 * 90):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        events = nav.take_events()
+        for p in events.plans:
+            told[p.robot] = np.array(p.points, dtype=np.float64).reshape(-1, 2)
+        for r in events.results:
+            ended += 1
+            send(r.robot)
+        for name in names:
+            robot = nav.robots[name]
+            path = told.get(name)
+            if robot.active and robot.state != "planning" and path is not None and len(path) >= 2:
+                x, y = where(sim, name)
+                worst = max(worst, off_path(path, (x, y)))
+    assert ended >= 20  # goals were reached and new ones sent: the paths changed many times
+    assert worst < 0.5
+
+
+def off_path(path: np.ndarray, point: tuple[float, float]) -> float:
+    """How far ``point`` is from the polyline ``path`` (m), sampled finely."""
+    a, b = path[:-1], path[1:]
+    t = np.linspace(0.0, 1.0, 51)[None, :, None]
+    samples = (a[:, None, :] + t * (b - a)[:, None, :]).reshape(-1, 2)
+    return float(np.hypot(samples[:, 0] - point[0], samples[:, 1] - point[1]).min())
