@@ -398,8 +398,20 @@ class StandIn:
         query ends: what the servers of a service answered, all of them."""
         return list(self._call(name, srv_type, request, timeout))
 
+    def call_later(self, name: str, srv_type: str, request: Any, timeout: float = 10.0) -> Callable[[], Any]:
+        """Send the call now; the function returned waits for its reply (as :meth:`call`)."""
+        replies = self._call(name, srv_type, request, timeout)
+
+        def wait() -> Any:
+            for response in replies:
+                return response
+            raise TimeoutError(f"no reply from {name}")
+
+        return wait
+
     def _call(self, name: str, srv_type: str, request: Any, timeout: float) -> Iterator[Any]:
-        """As rmw_zenoh's client: target all complete queryables, no consolidation."""
+        """As rmw_zenoh's client: target all complete queryables, no consolidation. The query
+        leaves at once; the replies are read as the iterator is."""
         self._seq += 1
         seq = self._seq
         payload = serialize(request, f"{srv_type}_Request")
@@ -411,6 +423,9 @@ class StandIn:
             consolidation=zenoh.ConsolidationMode.NONE,
             timeout=timeout,
         )
+        return self._replies(name, srv_type, seq, replies)
+
+    def _replies(self, name: str, srv_type: str, seq: int, replies: Any) -> Iterator[Any]:
         for reply in replies:
             if reply.ok is None:
                 continue  # rclcpp logs error replies and keeps waiting
@@ -481,14 +496,15 @@ class ActionClient:
         return goal_id, self.tool.call(f"{self.action}/_action/send_goal", f"{self.type}_SendGoal", request, timeout)
 
     def get_result(self, goal_id: bytes, timeout: float = 60.0) -> queue.Queue[Any]:
-        """The call runs on a thread of its own (it blocks until the goal ends): its response, or
-        the exception it raised, arrives in the queue."""
+        """The call leaves now; its reply (it comes when the goal ends) is waited for on a thread
+        of its own and arrives in the queue, or the exception that waiting raised."""
         out: queue.Queue[Any] = queue.Queue()
         request = msg(f"{self.type}_GetResult_Request", goal_id=uuid_msg(goal_id))
+        wait = self.tool.call_later(f"{self.action}/_action/get_result", f"{self.type}_GetResult", request, timeout)
 
         def run() -> None:
             try:
-                out.put(self.tool.call(f"{self.action}/_action/get_result", f"{self.type}_GetResult", request, timeout))
+                out.put(wait())
             except Exception as e:
                 out.put(e)
 
