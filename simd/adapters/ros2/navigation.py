@@ -41,7 +41,7 @@ import zenoh
 
 from protocol.errors import FleetError
 from protocol.messages import Time
-from protocol.navigation import CancelRequest, NavigateReply, NavigationRequest, NavigationResult
+from protocol.navigation import CancelRequest, NavigateReply, NavigateRequest, NavigationRequest, NavigationResult
 from simd.adapters.ros2 import graph
 from simd.adapters.ros2.action_server import (
     CancelCode,
@@ -125,7 +125,7 @@ class RosNavigation:
         self.parts = action_parts(NAVIGATE_TO_POSE)
         self.robots: dict[str, RobotNav] = {}  # written on the adapter's thread; zenoh's only ask `in`
         self.now = Time()  # the latest sim time heard of (a goal refused at once is stamped with it)
-        self.refused = 0  # requests that could not be decoded
+        self.malformed = 0  # requests and goal poses that could not be decoded (counted, logged)
         s = p.session
         # whether anybody reads any robot's feedback or plan: one wildcard probe each
         feedback_probe = s.declare_publisher(self._part_key("feedback", "*"))
@@ -197,7 +197,7 @@ class RosNavigation:
                     raise ValueError(f"request of {len(payload)} bytes")
                 call.request = self.store.deserialize_cdr(payload, request_type)
             except Exception as e:  # rosbags raises several kinds for bytes that are not the type
-                self.refused += 1
+                self.malformed += 1
                 log.info("%s refused: malformed %s: %s: %s", call.name, request_type, type(e).__name__, e)
                 call.respond(**refuse)
                 return
@@ -210,10 +210,13 @@ class RosNavigation:
         namespace = chunks[1]
         if namespace not in self.robots or chunks[4] not in self._goal_pose_hashes:
             return
+        payload = sample.payload.to_bytes()
         try:
-            pose = self.store.deserialize_cdr(sample.payload.to_bytes()[:MAX_REQUEST_BYTES], POSE_STAMPED)
+            if len(payload) > MAX_REQUEST_BYTES:
+                raise ValueError(f"{len(payload)} bytes")
+            pose = self.store.deserialize_cdr(payload, POSE_STAMPED)
         except Exception as e:
-            self.refused += 1
+            self.malformed += 1
             log.info("/%s/goal_pose ignored: malformed PoseStamped: %s", namespace, e)
             return
         self.outbox.put(partial(self._goal_pose, namespace, pose))
@@ -246,7 +249,7 @@ class RosNavigation:
             return
         self._start(robot, uuid, request, None)
 
-    def _start(self, robot: RobotNav, uuid: bytes, request: Any, call: Call | None) -> None:
+    def _start(self, robot: RobotNav, uuid: bytes, request: NavigateRequest, call: Call | None) -> None:
         namespace = robot.namespace
         try:
             self._submit(request, self._later(partial(self._started, namespace, uuid, call)))
