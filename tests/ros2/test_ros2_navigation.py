@@ -99,6 +99,7 @@ def test_goal_reached_end_to_end_with_feedback_status_and_plan(ros: RosDomain) -
     (row,) = final.status_list
     assert bytes(row.goal_info.goal_id.uuid) == goal_id
     assert ros.tool.rejected == []
+    assert "Traceback" not in ros.daemon.log()
 
 
 def test_cancel_by_id_then_the_codes_of_cancels_that_find_nothing(ros: RosDomain) -> None:
@@ -193,6 +194,7 @@ def test_goals_in_a_wall_off_the_map_or_in_another_frame(ros: RosDomain) -> None
     (robot,) = c.robots()
     assert robot.linear_velocity > 0 or abs(robot.angular_velocity) > 0
     assert ros.daemon.alive()
+    assert "Traceback" not in ros.daemon.log()
 
 
 def test_goal_pose_drives_the_robot_as_rvizs_2d_goal_pose(ros: RosDomain) -> None:
