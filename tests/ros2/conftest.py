@@ -7,6 +7,7 @@ import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -59,14 +60,20 @@ def ros(ros_factory: Callable[..., RosDomain]) -> RosDomain:
     return ros_factory()
 
 
-def pose(x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> object:
+def pose(x: float = 0.0, y: float = 0.0, yaw: float = 0.0, z: float = 0.01) -> object:
     import math
 
     return msg(
         "geometry_msgs/msg/Pose",
-        position=msg("geometry_msgs/msg/Point", x=x, y=y, z=0.01),
+        position=msg("geometry_msgs/msg/Point", x=x, y=y, z=z),
         orientation=msg("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)),
     )
+
+
+def pose_stamped(x: float, y: float, yaw: float = 0.0, frame: str = "map") -> Any:
+    """A goal as RViz's "2D Goal Pose" sends it (stamped zero here)."""
+    header = msg("std_msgs/msg/Header", stamp=msg("builtin_interfaces/msg/Time", sec=0, nanosec=0), frame_id=frame)
+    return msg("geometry_msgs/msg/PoseStamped", header=header, pose=pose(x, y, yaw, z=0.0))
 
 
 def spawn_request(name: str, namespace: str, x: float, y: float, yaw: float = 0.0,

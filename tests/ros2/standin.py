@@ -22,8 +22,10 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
 import queue
 import struct
+import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -119,6 +121,62 @@ def _simulation_idl() -> str:
     )
 
 
+def _action_idl(pkg: str, name: str, goal: str, result: str, feedback: str) -> str:
+    """An action as rosidl expands it (rosidl_parser's Action; REP-2011 hashes the whole of it):
+    Goal, Result, Feedback, the SendGoal and GetResult services with their events, the feedback
+    message, and the action type that holds the six."""
+    q = f"{pkg}::action::{name}"
+    uuid = "unique_identifier_msgs::msg::UUID goal_id;"
+    services = {
+        "SendGoal": (f"{uuid} {q}_Goal goal;", "boolean accepted; builtin_interfaces::msg::Time stamp;"),
+        "GetResult": (uuid, f"int8 status; {q}_Result result;"),
+    }
+    out = [f"struct {name}_Goal {{ {goal} }};", f"struct {name}_Result {{ {result} }};",
+           f"struct {name}_Feedback {{ {feedback} }};"]  # fmt: skip
+    for srv, (req, resp) in services.items():
+        out.append(
+            f"struct {name}_{srv}_Request {{ {req} }}; struct {name}_{srv}_Response {{ {resp} }};\n"
+            f"struct {name}_{srv}_Event {{ service_msgs::msg::ServiceEventInfo info; "
+            f"sequence<{q}_{srv}_Request, 1> request; sequence<{q}_{srv}_Response, 1> response; }};\n"
+            f"struct {name}_{srv} {{ {q}_{srv}_Request request_message; {q}_{srv}_Response response_message; "
+            f"{q}_{srv}_Event event_message; }};"
+        )
+    out.append(f"struct {name}_FeedbackMessage {{ {uuid} {q}_Feedback feedback; }};")
+    out.append(
+        f"struct {name} {{ {q}_Goal goal; {q}_Result result; {q}_Feedback feedback; "
+        f"{q}_SendGoal send_goal_service; {q}_GetResult get_result_service; "
+        f"{q}_FeedbackMessage feedback_message; }};"
+    )
+    body = "\n".join(out)
+    return f"module {pkg} {{ module action {{\n{body}\n}}; }};\n"
+
+
+#: action_msgs/srv/CancelGoal (ros2/rcl_interfaces); its GoalInfo is in rosbags' stores
+_CANCEL_IDL = """
+module action_msgs { module srv {
+  struct CancelGoal_Request { action_msgs::msg::GoalInfo goal_info; };
+  struct CancelGoal_Response { int8 return_code; sequence<action_msgs::msg::GoalInfo> goals_canceling; };
+  struct CancelGoal_Event { service_msgs::msg::ServiceEventInfo info;
+    sequence<action_msgs::srv::CancelGoal_Request, 1> request;
+    sequence<action_msgs::srv::CancelGoal_Response, 1> response; };
+  struct CancelGoal { action_msgs::srv::CancelGoal_Request request_message;
+    action_msgs::srv::CancelGoal_Response response_message; action_msgs::srv::CancelGoal_Event event_message; };
+}; };
+"""
+
+#: nav2_msgs/action/NavigateToPose, Jazzy (ros-navigation/navigation2, branch jazzy), and
+#: test_msgs/action/Fibonacci, whose hashes rosidl publishes (to check the expansion itself)
+_ACTION_IDL = _action_idl(
+    "nav2_msgs", "NavigateToPose",
+    "geometry_msgs::msg::PoseStamped pose; string behavior_tree;",
+    "uint16 error_code; string error_msg;",
+    "geometry_msgs::msg::PoseStamped current_pose; builtin_interfaces::msg::Duration navigation_time; "
+    "builtin_interfaces::msg::Duration estimated_time_remaining; int16 number_of_recoveries; "
+    "float distance_remaining;",
+) + _action_idl("test_msgs", "Fibonacci", "int32 order;", "sequence<int32> sequence;",
+                  "sequence<int32> sequence;")  # fmt: skip
+
+
 @functools.lru_cache(maxsize=1)
 def types() -> Typestore:
     """Jazzy's messages, rosidl's ServiceEventInfo (uint8 client_gid) and the services in IDL."""
@@ -132,6 +190,8 @@ def types() -> Typestore:
         )
     )
     store.register(get_types_from_idl(_IDL))
+    store.register(get_types_from_idl(_CANCEL_IDL))
+    store.register(get_types_from_idl(_ACTION_IDL))
     store.register(get_types_from_idl(_simulation_idl()))
     return store
 
@@ -338,8 +398,20 @@ class StandIn:
         query ends: what the servers of a service answered, all of them."""
         return list(self._call(name, srv_type, request, timeout))
 
+    def call_later(self, name: str, srv_type: str, request: Any, timeout: float = 10.0) -> Callable[[], Any]:
+        """Send the call now; the function returned waits for its reply (as :meth:`call`)."""
+        replies = self._call(name, srv_type, request, timeout)
+
+        def wait() -> Any:
+            for response in replies:
+                return response
+            raise TimeoutError(f"no reply from {name}")
+
+        return wait
+
     def _call(self, name: str, srv_type: str, request: Any, timeout: float) -> Iterator[Any]:
-        """As rmw_zenoh's client: target all complete queryables, no consolidation."""
+        """As rmw_zenoh's client: target all complete queryables, no consolidation. The query
+        leaves at once; the replies are read as the iterator is."""
         self._seq += 1
         seq = self._seq
         payload = serialize(request, f"{srv_type}_Request")
@@ -351,6 +423,9 @@ class StandIn:
             consolidation=zenoh.ConsolidationMode.NONE,
             timeout=timeout,
         )
+        return self._replies(name, srv_type, seq, replies)
+
+    def _replies(self, name: str, srv_type: str, seq: int, replies: Any) -> Iterator[Any]:
         for reply in replies:
             if reply.ok is None:
                 continue  # rclcpp logs error replies and keeps waiting
@@ -367,6 +442,87 @@ class StandIn:
     def service_available(self, name: str, srv_type: str) -> bool:
         """As GraphCache::service_server_is_available: an SS token of that name and type."""
         return any(e.kind == "SS" and e.topic == name and e.type == dds_name(srv_type) for e in self.graph())
+
+
+# -- actions (rcl_action over rmw_zenoh: three services and two topics under <action>/_action/) --------
+
+
+def actions(graph: list[Entity]) -> dict[str, set[str]]:
+    """What ``ros2 action list -t`` shows: rcl_action's graph.c takes every topic whose name
+    contains ``/_action/feedback`` as an action (the name before it) of the feedback's type less
+    its ``_FeedbackMessage``."""
+    out: dict[str, set[str]] = {}
+    for e in graph:
+        if e.kind == "MP" and "/_action/feedback" in e.topic:
+            pkg, kind, _, name = e.type.split("::")
+            out.setdefault(e.topic.split("/_action/feedback")[0], set()).add(
+                f"{pkg}/{kind}/{name[:-1].removesuffix('_FeedbackMessage')}"
+            )
+    return out
+
+
+def action_server_available(graph: list[Entity], action: str, action_type: str) -> bool:
+    """As rcl_action_server_is_available: the three services and both publishers exist."""
+    services = {(e.topic, e.type) for e in graph if e.kind == "SS"}
+    publishers = {(e.topic, e.type) for e in graph if e.kind == "MP"}
+    return all(
+        (f"{action}/_action/{suffix}", dds_name(t)) in services
+        for suffix, t in (("send_goal", f"{action_type}_SendGoal"), ("get_result", f"{action_type}_GetResult"),
+                          ("cancel_goal", "action_msgs/srv/CancelGoal"))
+    ) and all(
+        (f"{action}/_action/{suffix}", dds_name(t)) in publishers
+        for suffix, t in (("feedback", f"{action_type}_FeedbackMessage"), ("status", "action_msgs/msg/GoalStatusArray"))
+    )  # fmt: skip
+
+
+def uuid_msg(raw: bytes) -> Any:
+    import numpy as np
+
+    return msg("unique_identifier_msgs/msg/UUID", uuid=np.frombuffer(raw, dtype=np.uint8).copy())
+
+
+class ActionClient:
+    """An rclcpp action client of one action: goals by send_goal, results by get_result (asked at
+    once, answered when the goal ends), cancels by cancel_goal, all as service calls."""
+
+    def __init__(self, tool: StandIn, action: str, action_type: str) -> None:
+        self.tool = tool
+        self.action = action
+        self.type = action_type
+
+    def send_goal(self, goal: Any, goal_id: bytes | None = None, timeout: float = 10.0) -> tuple[bytes, Any]:
+        goal_id = goal_id or os.urandom(16)
+        request = msg(f"{self.type}_SendGoal_Request", goal_id=uuid_msg(goal_id), goal=goal)
+        return goal_id, self.tool.call(f"{self.action}/_action/send_goal", f"{self.type}_SendGoal", request, timeout)
+
+    def get_result(self, goal_id: bytes, timeout: float = 60.0) -> queue.Queue[Any]:
+        """The call leaves now; its reply (it comes when the goal ends) is waited for on a thread
+        of its own and arrives in the queue, or the exception that waiting raised."""
+        out: queue.Queue[Any] = queue.Queue()
+        request = msg(f"{self.type}_GetResult_Request", goal_id=uuid_msg(goal_id))
+        wait = self.tool.call_later(f"{self.action}/_action/get_result", f"{self.type}_GetResult", request, timeout)
+
+        def run() -> None:
+            try:
+                out.put(wait())
+            except Exception as e:
+                out.put(e)
+
+        threading.Thread(target=run, daemon=True).start()
+        return out
+
+    def cancel_goal(self, goal_id: bytes = bytes(16), sec: int = 0, nanosec: int = 0) -> Any:
+        info = msg("action_msgs/msg/GoalInfo", goal_id=uuid_msg(goal_id),
+                   stamp=msg("builtin_interfaces/msg/Time", sec=sec, nanosec=nanosec))  # fmt: skip
+        request = msg("action_msgs/srv/CancelGoal_Request", goal_info=info)
+        return self.tool.call(f"{self.action}/_action/cancel_goal", "action_msgs/srv/CancelGoal", request)
+
+    def feedback(self) -> queue.Queue[tuple[Any, int, bytes, bytes]]:
+        return self.tool.subscribe(f"{self.action}/_action/feedback", f"{self.type}_FeedbackMessage")
+
+    def status(self) -> queue.Queue[Any]:
+        """As rcl_action's status subscription: transient local, depth 1."""
+        return self.tool.subscribe_late(f"{self.action}/_action/status", "action_msgs/msg/GoalStatusArray", depth=1)
 
 
 def wait_for(q: queue.Queue[Any], predicate: Any = None, timeout: float = 10.0) -> Any:

@@ -119,7 +119,8 @@ def test_delete_entity(ros: RosDomain) -> None:
 def test_graph_names_nodes_topics_and_services_as_gazebo(ros: RosDomain) -> None:
     tool = ros.tool
     assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
-    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind != "NN" for e in g) == 7)
+    # 7 of the Gazebo robot, and 7 of Nav2's navigate_to_pose, goal_pose and plan (test_ros2_navigation.py)
+    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind != "NN" for e in g) == 14)
     nodes = {e.node_fqn for e in g if e.kind == "NN"}
     assert nodes == {"/fleetsim", "/TB3_1/turtlebot3"}
     assert {e.node_fqn for e in g if e.namespace == "/TB3_1"} == {"/TB3_1/turtlebot3"}

@@ -18,8 +18,8 @@ import pytest
 from clients import FleetClient, wait_until
 from protocol.placement import owner
 from tests.conftest import simd_command
-from tests.ros2.conftest import spawn_request
-from tests.ros2.standin import Entity, StandIn, msg, wait_for
+from tests.ros2.conftest import pose_stamped, spawn_request
+from tests.ros2.standin import Entity, StandIn, msg, uuid_msg, wait_for
 from tests.scaleout.test_router import _start, _wait_for, router  # noqa: F401  (the router fixture)
 
 Router = tuple[str, subprocess.Popen[str], Path]
@@ -55,6 +55,22 @@ def _spawn(tool: StandIn, name: str, x: float, namespace: str = "") -> Any:
     replies = tool.call_all(*SPAWN, spawn_request(name, namespace, x, 0.0))
     assert len(replies) == 1, [r.status_message for r in replies]
     return replies[0]
+
+
+def _goal_once(tool: StandIn, namespace: str, x: float) -> None:
+    """A navigate_to_pose goal and a cancel of it, each answered by one daemon, once."""
+    nav = "nav2_msgs/action/NavigateToPose"
+    action = f"/{namespace}/navigate_to_pose/_action"
+    goal_id = bytes(range(16))
+    goal = msg(f"{nav}_Goal", pose=pose_stamped(x, 0.0), behavior_tree="")
+    request = msg(f"{nav}_SendGoal_Request", goal_id=uuid_msg(goal_id), goal=goal)
+    (accepted,) = tool.call_all(f"{action}/send_goal", f"{nav}_SendGoal", request)
+    assert accepted.accepted
+    zero = msg("builtin_interfaces/msg/Time", sec=0, nanosec=0)
+    info = msg("action_msgs/msg/GoalInfo", goal_id=uuid_msg(goal_id), stamp=zero)
+    cancel = msg("action_msgs/srv/CancelGoal_Request", goal_info=info)
+    (cancelled,) = tool.call_all(f"{action}/cancel_goal", "action_msgs/srv/CancelGoal", cancel)
+    assert [bytes(i.goal_id.uuid) for i in cancelled.goals_canceling] == [goal_id]
 
 
 def _delete(tool: StandIn, name: str) -> Any:
@@ -133,7 +149,11 @@ def test_two_daemons_show_one_simulator_to_ros(ros_mode: str, router: Router, tm
             assert {e.node_fqn for e in g if e.kind == "NN" and e.namespace == "/"} == {"/fleetsim_a", "/fleetsim_b"}
             clock_nodes, spawn_nodes = _voice(g)
             assert clock_nodes == ["fleetsim_a"] and spawn_nodes == ["fleetsim_a"]
-            assert {e.node for e in g if e.kind == "SS"} == {"fleetsim_a"}
+            assert {e.node for e in g if e.kind == "SS" and e.namespace == "/"} == {"fleetsim_a"}
+            # a robot's own services are its navigate_to_pose action's, on its node, from its daemon
+            assert {e.topic.split("/_action/")[0] for e in g if e.kind == "SS" and e.namespace != "/"} <= {
+                f"/{n}/navigate_to_pose" for n in names
+            }
 
             # spawns through ROS land where `fleet spawn` would put them, each with one reply
             here, there = on_a[0], on_b[1]
@@ -149,6 +169,8 @@ def test_two_daemons_show_one_simulator_to_ros(ros_mode: str, router: Router, tm
             clash = _spawn(tool, on_b[2], 3.0, namespace=here)  # b's robot in a's robot's namespace
             assert not clash.success and f"Entity [{here}] already exists (on another daemon)" in clash.status_message
             assert {r.name: r.daemon for r in c.robots()} == placed
+            # a goal for b's robot is answered once, by b, whose navigator drives the robot
+            _goal_once(tool, there, 3.0)
             # a delete reaches the robot's daemon through the speaker
             gone = _delete(tool, there)
             assert (gone.success, gone.status_message) == (True, f"Successfully deleted entity [{there}]")

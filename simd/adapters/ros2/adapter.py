@@ -5,8 +5,10 @@ protocol's) and shows every robot the way the Gazebo TurtleBot3 does: ``/<ns>/od
 ``/<ns>/scan``, ``/<ns>/imu``, ``/<ns>/joint_states`` and ``/<ns>/cmd_vel`` (Twist and
 TwistStamped), the whole fleet on ``/tf`` and each robot's fixed frames on ``/tf_static``
 (namespaced frames, so one tree holds every robot), sim time
-on ``/clock``, and gazebo_ros' ``/spawn_entity`` and ``/delete_entity``. Liveliness tokens make
-all of it visible to ``ros2 node|topic|service list`` and RViz.
+on ``/clock``, and gazebo_ros' ``/spawn_entity`` and ``/delete_entity``; with the navigator on,
+each robot also has Nav2's ``navigate_to_pose`` action, ``goal_pose`` and ``plan``
+(navigation.py). Liveliness tokens make all of it visible to ``ros2 node|topic|service|action
+list`` and RViz.
 
 In a fleet shared by several daemons (``simd --join``) each daemon shows its own robots, under a
 node of its own (``/fleetsim_<id>``), and one of them speaks for the fleet: it alone publishes
@@ -28,9 +30,11 @@ from typing import Any
 import zenoh
 
 from protocol.control import Clock
+from protocol.messages import Time
 from simd.adapters.ros2 import cdr, gazebo_services, graph, simulation_services
 from simd.adapters.ros2.command_intake import RosCommandIntake
 from simd.adapters.ros2.interfaces import Distro
+from simd.adapters.ros2.navigation import RosNavigation
 from simd.adapters.ros2.robot_ports import Participant, RobotPorts, RosPublisher
 from simd.adapters.ros2.service_server import ServiceServer
 from simd.adapters.ros2.shared_fleet import FleetRequests, SharedFleet, Speaker, engine_ask
@@ -39,7 +43,7 @@ from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
 from simd.core.snapshot import TickSnapshot
 from simd.engine import Engine
 from simd.engine.outbox import Outbox
-from simd.engine.ports import Deleted, Event, Spawned, WorldReset
+from simd.engine.ports import Deleted, Event, Navigation, Spawned, WorldReset
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +90,11 @@ class Ros2Adapter:
         self.robots: dict[str, RobotPorts] = {}
         self.outbox = Outbox("ros2-out")
         self.commands = RosCommandIntake(p, self._known)
+        #: Nav2's navigate_to_pose, goal_pose and plan of each robot (not with --no-nav); a robot's
+        #: goals go to this daemon's own engine, which navigates it, shared fleet or not
+        self.navigation = (
+            RosNavigation(p, engine.submit, self.outbox, options.world_frame) if engine.navigator is not None else None
+        )
         # the fleet's voice (/clock and the services): declared while this daemon speaks for the
         # fleet, which a lone daemon always does; touched on the outbox thread only
         self.clock_pub: RosPublisher | None = None
@@ -122,6 +131,8 @@ class Ros2Adapter:
             self.outbox.put(partial(self._remove_robot, event.robot.namespace))
         elif isinstance(event, WorldReset):
             self.outbox.put(self._reset)
+        elif isinstance(event, Navigation) and self.navigation is not None:
+            self.outbox.put(partial(self.navigation.publish, event.events))
 
     def on_clock(self, clock: Clock) -> None:
         if clock.paused:  # while running, every tick sends the clock (see _publish_tick)
@@ -139,7 +150,11 @@ class Ros2Adapter:
             self.speaker.close()
         self.outbox.put(self._fall_silent)  # no service call taken once the outbox has stopped
         self.commands.close()
+        if self.navigation is not None:
+            self.navigation.close_inputs()
         self.outbox.close()
+        if self.navigation is not None:
+            self.navigation.close()
         for ports in self.robots.values():
             ports.close()
         self.robots.clear()
@@ -197,12 +212,16 @@ class Ros2Adapter:
     def _add_robot(self, namespace: str, model: Any) -> None:
         if namespace in self.robots:
             return
-        self.robots[namespace] = RobotPorts(self.participant, namespace, model, self.options.world_frame)
+        ports = self.robots[namespace] = RobotPorts(self.participant, namespace, model, self.options.world_frame)
+        if self.navigation is not None:
+            self.navigation.add_robot(namespace, ports.node)
 
     def _remove_robot(self, namespace: str) -> None:
         ports = self.robots.pop(namespace, None)
         if ports is not None:
             ports.close()
+        if self.navigation is not None:
+            self.navigation.remove_robot(namespace)
         for enc in (self._odom, self._scan, self._tf, self._imu):
             enc.forget(namespace)
 
@@ -214,6 +233,8 @@ class Ros2Adapter:
     def _publish_clock(self, t: float) -> None:
         """Each sim time once on /clock (a step's last tick is also the clock of the pause after it)."""
         self._time = t
+        if self.navigation is not None:
+            self.navigation.now = Time.from_seconds(t)
         pub = self.clock_pub
         stamp = cdr.stamp(t)  # the tick's time and the clock's (rounded to ns) are one stamp
         if pub is not None and pub.wanted and stamp != self._sent_stamp:

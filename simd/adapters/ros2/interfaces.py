@@ -1,10 +1,16 @@
 """ROS 2 interface types: CDR through rosbags, the names and type hashes rmw_zenoh puts in keys.
 
-rosbags' stores know the standard messages (nav_msgs, sensor_msgs, tf2_msgs, ...). The
-services the daemon serves (gazebo_msgs' SpawnEntity and DeleteEntity, simulation_interfaces'
-standard simulator services) are registered here from their definitions, written as rosidl
-reads them (field types, names and order; comments and constants left out, as the hashes
-and CDR ignore them).
+rosbags' stores know the standard messages (nav_msgs, sensor_msgs, tf2_msgs, action_msgs' messages,
+...). The services the daemon serves (gazebo_msgs' SpawnEntity and DeleteEntity,
+simulation_interfaces' standard simulator services, action_msgs' CancelGoal) and the action
+(nav2_msgs' NavigateToPose) are registered here from their definitions, written as rosidl reads
+them (field types, names and order; comments and constants left out, as the hashes and CDR
+ignore them).
+
+An action is no type of its own on the wire: rosidl turns ``pkg/action/A`` into messages
+(``A_Goal``, ``A_Result``, ``A_Feedback``, ``A_FeedbackMessage``) and two services
+(``A_SendGoal``, ``A_GetResult``), which rmw_zenoh carries as any other; their hashes are those
+of the synthesised types (checked against rosidl's own for test_msgs' Fibonacci in the tests).
 
 A key carries a type hash (REP-2011 ``RIHS01_``) on Iron and later; Humble's rmw_zenoh puts the
 constant ``TypeHashNotSupported`` there instead. A service's hash covers what rosidl
@@ -81,6 +87,28 @@ SIMULATION_SERVICES: dict[str, tuple[str, str]] = {
 }
 
 
+#: nav2_msgs' NavigateToPose (ros-navigation/navigation2, nav2_msgs/action/NavigateToPose.action):
+#: (goal, result, feedback) per distro. Jazzy's result (and Kilted's: only its constants differ,
+#: which neither the hash nor CDR sees) is an error code and message; Humble's is std_msgs/Empty.
+NAVIGATE_TO_POSE = "nav2_msgs/action/NavigateToPose"
+_NAV_GOAL = "geometry_msgs/PoseStamped pose\nstring behavior_tree"
+_NAV_FEEDBACK = (
+    "geometry_msgs/PoseStamped current_pose\nbuiltin_interfaces/Duration navigation_time\n"
+    "builtin_interfaces/Duration estimated_time_remaining\nint16 number_of_recoveries\nfloat32 distance_remaining"
+)
+ACTIONS: dict[Distro, dict[str, tuple[str, str, str]]] = {
+    "jazzy": {NAVIGATE_TO_POSE: (_NAV_GOAL, "uint16 error_code\nstring error_msg", _NAV_FEEDBACK)},
+    "humble": {NAVIGATE_TO_POSE: (_NAV_GOAL, "std_msgs/Empty result", _NAV_FEEDBACK)},
+}
+#: what every action server serves beside its own types (ros2/rcl_interfaces, action_msgs/srv)
+ACTION_SERVICES: dict[str, tuple[str, str]] = {
+    "action_msgs/srv/CancelGoal": (
+        "action_msgs/GoalInfo goal_info",
+        "int8 return_code\naction_msgs/GoalInfo[] goals_canceling",
+    ),
+}
+
+
 #: rosidl's ServiceEventInfo, as hashed (uint8 client_gid, not rosbags' char)
 _SERVICE_EVENT_INFO = """uint8 REQUEST_SENT = 0
 uint8 REQUEST_RECEIVED = 1
@@ -117,19 +145,48 @@ def service_definitions(name: str, request: str, response: str, *, with_event: b
     return out
 
 
-def _register_ours(store: Typestore, *, with_event: bool) -> Typestore:
+def action_definitions(name: str, goal: str, result: str, feedback: str, *, with_event: bool) -> dict[str, Any]:
+    """What rosidl makes of an action ``pkg/action/A`` (rosidl_parser's ``Action``): its goal,
+    result and feedback, the feedback message (``goal_id`` and ``feedback``), the ``A_SendGoal``
+    and ``A_GetResult`` services and, for hashing, the action type that holds them all."""
+    uuid = "unique_identifier_msgs/UUID goal_id"
+    texts = {
+        f"{name}_Goal": goal,
+        f"{name}_Result": result,
+        f"{name}_Feedback": feedback,
+        f"{name}_FeedbackMessage": f"{uuid}\n{name}_Feedback feedback",
+    }
+    if with_event:
+        texts[name] = (
+            f"{name}_Goal goal\n{name}_Result result\n{name}_Feedback feedback\n"
+            f"{name}_SendGoal send_goal_service\n{name}_GetResult get_result_service\n"
+            f"{name}_FeedbackMessage feedback_message"
+        )
+    out: dict[str, Any] = {}
+    for typename, text in texts.items():
+        out.update(get_types_from_msg(text, typename))
+    send = f"{uuid}\n{name}_Goal goal", "bool accepted\nbuiltin_interfaces/Time stamp"
+    out.update(service_definitions(f"{name}_SendGoal", *send, with_event=with_event))
+    get = uuid, f"int8 status\n{name}_Result result"
+    out.update(service_definitions(f"{name}_GetResult", *get, with_event=with_event))
+    return out
+
+
+def _register_ours(store: Typestore, distro: Distro, *, with_event: bool) -> Typestore:
     for name, text in SIMULATION_MESSAGES.items():
         store.register(get_types_from_msg(text, name))
-    for name, (req, resp) in {**SERVICES, **SIMULATION_SERVICES}.items():
+    for name, (req, resp) in {**SERVICES, **SIMULATION_SERVICES, **ACTION_SERVICES}.items():
         store.register(service_definitions(name, req, resp, with_event=with_event))
+    for name, (goal, result, feedback) in ACTIONS[distro].items():
+        store.register(action_definitions(name, goal, result, feedback, with_event=with_event))
     return store
 
 
 @functools.lru_cache(maxsize=4)
 def typestore(distro: Distro) -> Typestore:
-    """The store that serializes and deserializes: the distro's messages and our services."""
+    """The store that serializes and deserializes: the distro's messages, our services and actions."""
     store = get_typestore(Stores.ROS2_HUMBLE if distro == "humble" else Stores.ROS2_JAZZY)
-    return _register_ours(store, with_event=False)
+    return _register_ours(store, distro, with_event=False)
 
 
 @functools.lru_cache(maxsize=1)
@@ -138,7 +195,7 @@ def _hashing_store() -> Typestore:
     store = get_typestore(Stores.EMPTY)
     store.register({k: v for k, v in base.fielddefs.items() if k != "service_msgs/msg/ServiceEventInfo"})
     store.register(get_types_from_msg(_SERVICE_EVENT_INFO, "service_msgs/msg/ServiceEventInfo"))
-    return _register_ours(store, with_event=True)
+    return _register_ours(store, "jazzy", with_event=True)
 
 
 def rihs01(typename: str, store: Typestore | None = None) -> str:
@@ -153,6 +210,7 @@ def type_hash(typename: str, distro: Distro) -> str:
 
 
 def dds_type_name(typename: str) -> str:
-    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_`` (a service by its own name, no _Request)."""
+    """``pkg/msg/Name`` -> ``pkg::msg::dds_::Name_`` (a service by its own name, no _Request; an
+    action's parts as ``pkg::action::dds_::A_SendGoal_``)."""
     pkg, kind, name = typename.split("/")
     return f"{pkg}::{kind}::dds_::{name}_"

@@ -109,24 +109,61 @@ class LatchedPublisher(_Attached):
     Gazebo robot has its robot_state_publisher.
     """
 
-    def __init__(self, p: Participant, node: Node, topic: Topic, qos: Qos, tokens: list[Any]) -> None:
+    def __init__(self, p: Participant, node: Node, topic: Topic, qos: Qos, tokens: list[Any],
+                 *, lazy: bool = False) -> None:  # fmt: skip
+        """``lazy``: the token now, the cache with the first message (a publisher that may never
+        send, an action's status, costs a spawn only its token; nobody can miss what was
+        never sent, and a late subscriber finds the cache when it appears)."""
         token = node.entity_token(p.next_id(), Kind.PUBLISHER, topic, qos)
         self.gid = graph.gid(token)
         self.sequence = 0
-        self.pub = zenoh.ext.declare_advanced_publisher(
-            p.session,
-            topic.key,
-            cache=zenoh.ext.CacheConfig(max_samples=qos.depth),
+        self._session, self._key, self._depth = p.session, topic.key, qos.depth
+        self.pub = None if lazy else self._declare()
+        tokens.append(p.session.liveliness().declare_token(token))
+
+    def _declare(self) -> Any:
+        return zenoh.ext.declare_advanced_publisher(
+            self._session,
+            self._key,
+            cache=zenoh.ext.CacheConfig(max_samples=self._depth),
             publisher_detection=True,
             sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5),
         )
-        tokens.append(p.session.liveliness().declare_token(token))
+
+    def put(self, payload: bytes, stamp_ns: int | None = None) -> None:
+        if self.pub is None:
+            self.pub = self._declare()
+        super().put(payload, stamp_ns)
 
     def undeclare(self) -> None:
         try:
-            self.pub.undeclare()
+            if self.pub is not None:
+                self.pub.undeclare()
         except zenoh.ZError:
             pass
+
+
+class KeyPublisher(_Attached):
+    """A ROS publisher that is only its token: each message is a ``session.put`` on the key.
+    For topics that carry a few messages while something happens (a goal's feedback, its
+    plans): a declared zenoh publisher per robot would cost every spawn more than they do."""
+
+    def __init__(self, p: Participant, node: Node, topic: Topic, qos: Qos, tokens: list[Any]) -> None:
+        token = node.entity_token(p.next_id(), Kind.PUBLISHER, topic, qos)
+        self.topic = topic
+        self.gid = graph.gid(token)
+        self.sequence = 0
+        self.pub = _KeyPut(p.session, topic.key)
+        tokens.append(p.session.liveliness().declare_token(token))
+
+
+@dataclass(frozen=True)
+class _KeyPut:
+    session: zenoh.Session
+    key: str
+
+    def put(self, payload: bytes, attachment: bytes) -> None:
+        self.session.put(self.key, payload, attachment=attachment)
 
 
 def _reliability(qos: Qos) -> zenoh.Reliability:
@@ -148,7 +185,7 @@ class RobotPorts:
         self._tokens: list[Any] = []
         ns = f"/{namespace}"
         t = self._tokens
-        node = declare_node(p, p.node(ns, NODE_NAME), t)
+        node = self.node = declare_node(p, p.node(ns, NODE_NAME), t)
         odom = p.topic(f"{ns}/odom", "nav_msgs/msg/Odometry")
         scan = p.topic(f"{ns}/scan", "sensor_msgs/msg/LaserScan")
         imu_topic = p.topic(f"{ns}/imu", "sensor_msgs/msg/Imu")

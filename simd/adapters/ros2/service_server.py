@@ -46,7 +46,7 @@ class Call:
     """One service call on its way: the request, the simulation to ask, the one answer to give."""
 
     def __init__(self, name: str, request: Any, response_type: str, store: Typestore,
-                 ask: Ask, send: Callable[[bytes], None], outbox: Outbox) -> None:  # fmt: skip
+                 send: Callable[[bytes], None], outbox: Outbox, ask: Ask | None = None) -> None:  # fmt: skip
         self.name = name
         self.request = request
         self._response_type = response_type
@@ -67,15 +67,28 @@ class Call:
     def respond(self, **fields: Any) -> None:
         """Answer with a response of these fields, the others zero (any thread; sent from the
         adapter's thread). Only the first answer counts."""
+        payload = self._payload(fields)
+        if payload is not None:
+            self._outbox.put(lambda: self._send(payload))
+
+    def respond_here(self, **fields: Any) -> None:
+        """Answer as :meth:`respond` does, but on this thread: for work that already runs on the
+        adapter's thread, which must never wait for room in its own queue."""
+        payload = self._payload(fields)
+        if payload is not None:
+            self._send(payload)
+
+    def _payload(self, fields: dict[str, Any]) -> bytes | None:
         if self._answered:
-            return
+            return None
         self._answered = True
         response = zero_message(self._store, self._response_type, fields)
-        payload = bytes(self._store.serialize_cdr(response, self._response_type))
-        self._outbox.put(lambda: self._send(payload))
+        return bytes(self._store.serialize_cdr(response, self._response_type))
 
     def ask(self, request: Request, then: Answer) -> None:
         """Ask the simulation; ``then`` gets its result or error (busy included), once."""
+        if self._ask is None:
+            raise RuntimeError(f"{self.name} was given nothing to ask")
         self._ask(request, then)
 
 
@@ -147,19 +160,9 @@ class ServiceServer:
             if str(query.key_expr) != key:
                 query.drop()  # a wildcard: somebody looking, not calling
                 return
-            try:
-                sequence, client_gid = _caller(query.attachment)
-            except ValueError:
-                sequence, client_gid = 0, server_gid  # not rclcpp (zenoh's CLI?): answer all the same
-
-            def send(payload: bytes) -> None:
-                try:
-                    query.reply(key, payload, attachment=graph.attachment(sequence, client_gid))
-                finally:
-                    query.drop()
-
+            send = reply_sender(query, key, server_gid)
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            call = Call(service.name, None, response_type, store, self.ask, send, self.outbox)
+            call = Call(service.name, None, response_type, store, send, self.outbox, self.ask)
             if len(payload) > MAX_REQUEST_BYTES:
                 self._malformed(service, call, f"request of {len(payload)} bytes is larger than {MAX_REQUEST_BYTES}")
                 return
@@ -183,6 +186,24 @@ class ServiceServer:
 
     def close(self) -> None:
         undeclare_all(self._entities)
+
+
+def reply_sender(query: zenoh.Query, key: str, server_gid: bytes) -> Callable[[bytes], None]:
+    """The one reply to a query, on ``key``, with the attachment rclcpp matches it by: the
+    request's sequence number and the client's GID (a caller without an attachment, zenoh's CLI
+    say, is answered all the same)."""
+    try:
+        sequence, client_gid = _caller(query.attachment)
+    except ValueError:
+        sequence, client_gid = 0, server_gid
+
+    def send(payload: bytes) -> None:
+        try:
+            query.reply(key, payload, attachment=graph.attachment(sequence, client_gid))
+        finally:
+            query.drop()
+
+    return send
 
 
 def _caller(attachment: zenoh.ZBytes | None) -> tuple[int, bytes]:
