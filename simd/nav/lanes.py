@@ -8,7 +8,8 @@ corridor two cells wide, the robots drive on the right: in a vertical one, the e
 goes north and the west lane south; in a horizontal one, the south lane goes east and the
 north lane west. Changing lanes (a step across) is always allowed, so is entering or leaving
 a corridor in any direction, and the crossings of corridors stay free; only a step along a
-lane against its direction is removed (and a diagonal into a lane against it).
+lane against its direction is removed (and a diagonal across the corridor into the other lane
+against it).
 
 Every cell stays reachable from every cell it was reachable from: a step removed has a way
 around through the other lane (across, along, across), which is why a cell counts as a lane
@@ -84,10 +85,14 @@ def keep_right(stand: B2, moves: npt.NDArray[np.bool_], steps: tuple[tuple[int, 
             continue
         n = idx[can] + dr * w + dc
         against = np.zeros(len(can), dtype=bool)
-        if dr:
-            against |= (v[can] != 0) & (v[n] == -dr)
-        if dc:
-            against |= (hz[can] != 0) & (hz[n] == -dc)
+        # only within one corridor: along its lane (the same lane at both ends), or a diagonal
+        # across it (into the partner's lane); two corridors' lanes that touch are not one road
+        if dr:  # vertical lanes: a west lane's partner is the next column east, and back
+            same = (v[n] == v[can]) if dc == 0 else (v[n] == -v[can]) & (v[can] == -dc)
+            against |= (v[can] != 0) & (v[n] == -dr) & same
+        if dc:  # horizontal lanes: a south lane's partner is the next row north, and back
+            same = (hz[n] == hz[can]) if dr == 0 else (hz[n] == -hz[can]) & (hz[can] == dr)
+            against |= (hz[can] != 0) & (hz[n] == -dc) & same
         out[can[against], k] = False
     return out
 
