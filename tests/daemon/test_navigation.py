@@ -313,7 +313,7 @@ def test_goals_repeat_bit_for_bit_for_a_seed(daemon_factory: Callable[..., Daemo
 
 
 def test_two_robots_swap_ends_of_a_corridor(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
-    """A corridor one robot wide (0.45 m between walls, the burger is 0.306 m across its
+    """A corridor one robot wide (0.45 m between walls; the burger is 0.178 m across its
     wheels' box): both robots arrive, neither touches the other."""
     world = tmp_path / "corridor.yaml"
     world.write_text(

@@ -21,7 +21,7 @@ from simd.core.worldfile import WorldGeometry, world_from_dict
 from simd.nav.navigator import NavConfig, Navigator
 
 CELL = 0.5
-#: two burgers' centres closer than this would have their bodies touch (wheel box 0.306 m wide)
+#: two burgers' centres closer than this might have their bodies touch (0.178 m wide, 0.14 long; margin)
 TOUCH_M = 0.2
 
 Robot = tuple[str, tuple[float, float, float], tuple[float, float]]
