@@ -127,7 +127,9 @@ class CellGraph:
         one robot wide be passed). A grid map's cells are its own, never shifted."""
         x_min, x_max, y_min, y_max = self.world.bounds
         size = self.size
-        need = min(body_radius(m) for m in _models())
+        # laid for the largest model the cells are for (a waffle's floor is not a burger's)
+        need = max((body_radius(m) for m in _models() if cell_size_for(m) <= size + 1e-9), default=0.0)
+        need = need or min(body_radius(m) for m in _models())
         spawn = self.world.default_spawn
         best, best_score = self.grid, (-1, -1)
         for sx in range(self.SHIFTS):

@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
+import numpy as np
 import pytest
 
 from clients import FleetClient, wait_until
@@ -447,3 +448,30 @@ def test_goto_without_a_daemon(tmp_path: Path) -> None:
     p = fleet("goto", "tb3_0", "1", "1", "-e", "tcp/127.0.0.1:9", "--timeout", "1")
     assert p.returncode == 3, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1
+
+
+def test_a_waffle_on_a_map_server_map_goes_round_a_wall(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    """A map as fleet-map or map_server writes it (PGM + YAML), a waffle (0.58 m cells): the
+    wall between start and goal leaves a gap at its top end, and the robot takes it."""
+    from protocol.mapfile import OCCUPIED, OccupancyMap, write_map
+
+    cells = np.zeros((80, 120), dtype=np.int8)  # 6 m x 4 m at 5 cm, row 0 at the bottom
+    cells[:2, :] = cells[-2:, :] = cells[:, :2] = cells[:, -2:] = OCCUPIED
+    cells[:58, 59:62] = OCCUPIED  # a wall up the middle from the bottom, 2.9 m of the 4
+    _, yaml_path = write_map(tmp_path / "room", OccupancyMap(cells, 0.05, (0.0, 0.0, 0.0)))
+    d = daemon_factory("--lockstep", "--world", str(yaml_path))
+    c = d.client()
+    c.spawn("w", 1.0, 1.0, model="waffle")
+    goal = c.navigate("w", 5.0, 1.0, tolerance=0.15)
+    highest = 0.0
+    for _ in range(120):
+        c.step(30)
+        highest = max(highest, pose(c, "w")[1])
+        state = c.navigation_state("w")
+        if not state.active:
+            break
+    result = goal.wait(timeout=5.0)
+    assert result.status == "reached", result
+    assert highest > 2.9  # round the wall's end, not through it
+    x, y, _ = pose(c, "w")
+    assert math.hypot(x - 5.0, y - 1.0) <= 0.15 + 1e-9
