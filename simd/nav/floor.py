@@ -35,6 +35,8 @@ DECIDE_WITHIN_CELLS = 0.6
 DETOUR_S = 3.0
 #: ... and keeps it on its map this long (s)
 AROUND_S = 20.0
+#: in the open, a robot that waited this long (s) for another plans around it too
+JAM_S = 5.0
 #: cells a robot commits to ahead of the one it stands in (in the open: further, so that it
 #: can cut straight across them)
 AHEAD = 2
@@ -193,11 +195,14 @@ class Floor:
         goal ended there) plans around it, for a while: the cells it holds go on its map."""
         m = self._m(robot)
         other = self.traffic.movers.get(m.waiting_for) if not m.route else None
-        if other is None or other.dist is not None:
+        if other is None:
             m.still_since = None
             return
         m.still_since = m.still_since if m.still_since is not None else now
-        if now - m.still_since < DETOUR_S:
+        # one that does not navigate: after DETOUR_S; one that does but stays in the way
+        # (a jam in the open, where cells are reserved but nobody moves): after JAM_S
+        patience = DETOUR_S if other.dist is None else JAM_S if self.costmap is not None else math.inf
+        if now - m.still_since < patience:
             return
         m.still_since = None
         cells = np.array(sorted(other.held), dtype=np.int64)

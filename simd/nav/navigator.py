@@ -52,7 +52,7 @@ from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import cell_size_for
 from simd.nav.costmap import Costmap, Grid
 from simd.nav.floor import Floor
-from simd.nav.follow import LOOKAHEAD_M, Limits, along, pursue, turn_to
+from simd.nav.follow import LOOKAHEAD_M, Limits, along, pursue, turn_to, wrap
 from simd.nav.lidar_guard import LOOK_AHEAD_M, LidarGuard
 from simd.nav.report import NavEvents, goal_pose, path_message, pose, summary_row
 from simd.nav.robot import NavRobot
@@ -87,6 +87,12 @@ PATIENCE_S = 120.0
 DECIDE_WITHIN_CELLS = 0.6
 #: a step in which the robot's body would enter a cell another robot holds is not taken
 GUARD_S = 0.1
+#: a goal driven (not waiting, not making way) for its patience without getting this much (m)
+#: nearer fails (``blocked``): a robot that keeps trying and getting nowhere says so
+PROGRESS_M = 0.1
+#: a robot the guard stops turns on the spot until it faces its way's first point within this
+#: (rad), then drives to that point (the corner it would have cut) until this near (m)
+FACING_RAD, CORNER_REACHED_M = 0.05, 0.03
 #: a robot whose way runs this far (m) from the path it told has it told again, at most this often (s)
 OFF_PATH_M, RETELL_S = 0.3, 1.0
 #: the deceleration the guard counts on (the wheels manage 1 m/s^2) and its sampling step (m)
@@ -207,6 +213,7 @@ class Navigator:
         robot.result = robot.feedback = None
         robot.command, robot.overridden_until = (0.0, 0.0), -math.inf
         robot.held_up_at_goal = False
+        robot.best_left, robot.progress_at, robot.corner = math.inf, now, None
         self.floor.stop(robot)
         self._drive_of = None
         return NavigateReply(goal_id=goal_id, robot=namespace, goal=goal_pose(req), preempted=preempted,
@@ -442,6 +449,16 @@ class Navigator:
         px = np.array([[p[0] for p in w] + [w[-1][0]] * (width - len(w)) for w in ways])
         py = np.array([[p[1] for p in w] + [w[-1][1]] * (width - len(w)) for w in ways])
         aim_x, aim_y, room = along(px, py, LOOKAHEAD_M)
+        for k, robot in enumerate(driven):  # one the guard sent to its way's corner goes there first
+            corner = robot.corner
+            if corner is None:
+                continue
+            left = math.hypot(corner[0] - x[k], corner[1] - y[k])
+            on_way = any(math.hypot(corner[0] - p[0], corner[1] - p[1]) < 0.02 for p in ways[k][1:])
+            if left <= CORNER_REACHED_M or not on_way:
+                robot.corner = None
+            else:
+                aim_x[k], aim_y[k], room[k] = corner[0], corner[1], min(float(room[k]), left)
         lidar = np.array([
             LOOK_AHEAD_M if abs(math.remainder(float(yaw[k]) - r.lidar_yaw, 2 * math.pi)) > 0.3 else r.lidar_room
             for k, r in enumerate(driven)
@@ -459,7 +476,16 @@ class Navigator:
             sub = Limits(limits.max_v[ks], limits.max_w[ks])
             dist = np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks])
             v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], np.minimum(room[ks], dist), sub)
-            v = np.where(self._would_crowd(driven, x, y, yaw, v, v_now), 0.0, v)
+            still = self._would_crowd(driven, x, y, yaw, v, v_now)
+            if still.any():  # even that arc would: stop, and turn on the spot to face the first point
+                js = np.flatnonzero(still)
+                pts = np.array([_first_step(ways[j]) for j in js.tolist()])
+                heading = np.arctan2(pts[:, 1] - y[js], pts[:, 0] - x[js])
+                facing = np.abs(wrap(heading - yaw[js])) <= FACING_RAD
+                w[js] = np.where(facing, 0.0, turn_to(yaw[js], heading, Limits(limits.max_v[js], limits.max_w[js])))
+                v[js] = 0.0
+                for j, (cx, cy) in zip(js.tolist(), pts.tolist(), strict=True):
+                    driven[j].corner = (cx, cy)  # and aims there, not round it, until it is there
         v = np.where(self._too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))
@@ -611,6 +637,11 @@ class Navigator:
                     continue
             else:
                 robot.stuck_since = None
+            if robot.state != "driving":  # waiting or making way: the traffic's business, not a stall
+                robot.progress_at = now
+            if now - robot.progress_at >= self.config.patience:  # driving, maybe, but getting nowhere
+                self._end(robot, "failed", "blocked", f"no nearer the goal for {self.config.patience:g} s", now)
+                continue
             if math.hypot(goal.x - x, goal.y - y) <= goal.tolerance:
                 if goal.yaw is None or abs(math.remainder(goal.yaw - yaw, 2 * math.pi)) <= goal.yaw_tolerance:
                     self._end(robot, "reached", "", "goal reached", now)
@@ -661,6 +692,8 @@ class Navigator:
             i = self._row[robot.namespace]
             x, y = float(table.x[i]), float(table.y[i])
             left = floor.left(robot, x, y) if floor is not None and robot.planned else 0.0
+            if robot.planned and left < robot.best_left - PROGRESS_M:
+                robot.best_left, robot.progress_at = left, now
             other = ""
             if robot.state == "waiting" and floor is not None:
                 other = slots.get(floor.waiting_for(robot), "")

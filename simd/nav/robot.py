@@ -50,6 +50,11 @@ class NavRobot:
     #: the path last put on P/<ns>/plan, and when (a robot that leaves it gets a new one told)
     told_path: F64 = field(default_factory=lambda: np.zeros((0, 2)))
     told_at: float = -math.inf
+    #: the least distance left it has had, and when it last got this much nearer (PROGRESS_M)
+    best_left: float = math.inf
+    progress_at: float = 0.0
+    #: the corner of its way it goes to first (cutting it would reach into another's cells)
+    corner: tuple[float, float] | None = None
 
     @property
     def active(self) -> bool:

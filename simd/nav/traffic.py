@@ -32,6 +32,9 @@ import numpy.typing as npt
 from simd.core.models import RobotModel
 from simd.nav.cells import MOVES, CellGraph, body_radius
 
+#: each move's length in cells
+STEP = tuple(math.hypot(dr, dc) for dr, dc in MOVES)
+
 F32 = npt.NDArray[np.float32]
 I64 = npt.NDArray[np.int64]
 
@@ -296,7 +299,9 @@ class Traffic:
                 d = float(dist[n])
                 if math.isfinite(d):
                     cx, cy = g.centre(n)
-                    found.append((d, math.hypot(cx - gx, cy - gy), k, n))
+                    # the step's own length counts: by distance left alone, diagonals always
+                    # win and a way goes diagonal first, then straight (a dog-leg)
+                    found.append((d + STEP[k] * g.size, math.hypot(cx - gx, cy - gy), k, n))
         found.sort()
         return [(n, k) for _, _, k, n in found]
 

@@ -18,7 +18,7 @@ from simd.core.mapworld import world_from_movingai
 from simd.core.movingai import parse_movingai
 from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import WorldGeometry, world_from_dict
-from simd.nav.navigator import NavConfig, Navigator
+from simd.nav.navigator import PATIENCE_S, NavConfig, Navigator
 
 CELL = 0.5
 #: two burgers' centres closer than this might have their bodies touch (0.178 m wide, 0.14 long; margin)
@@ -253,3 +253,56 @@ def off_path(path: np.ndarray, point: tuple[float, float]) -> float:
     t = np.linspace(0.0, 1.0, 51)[None, :, None]
     samples = (a[:, None, :] + t * (b - a)[:, None, :]).reshape(-1, 2)
     return float(np.hypot(samples[:, 0] - point[0], samples[:, 1] - point[1]).min())
+
+
+def test_ten_robots_in_turtlebot3_world_keep_reaching_goals() -> None:
+    """A crowd in the open (ten burgers among turtlebot3_world's pillars, a new goal as soon as
+    one ends): no robot hangs on a goal (one that gets nowhere ends ``blocked``, it does not
+    drive on forever), and every robot gets somewhere again and again."""
+    from simd.core.models import MODELS
+    from simd.core.worldfile import load_world
+    from simd.nav.flood import reachable
+
+    world = load_world("turtlebot3_world")
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots)
+    burger = MODELS["burger"]
+    cm = nav.costmap
+    start = cm.grid.cell(*world.default_spawn[:2])
+    assert start is not None
+    ok = reachable(np.isfinite(cm.costs(burger)), start) & (cm.clearance >= burger.radius + 0.05)
+    rows, cols = np.nonzero(ok)
+    points = cm.grid.centres(np.stack([rows, cols], axis=1).astype(np.int32))
+    rng = np.random.default_rng(8)  # (a crowd that locked up for good before the way's corners were kept)
+    names: list[str] = []
+    while len(names) < 10:
+        x, y = points[rng.integers(len(points))]
+        if names and np.hypot(sim.robots.x - x, sim.robots.y - y).min() < 0.7:
+            continue
+        names.append(f"r{len(names)}")
+        sim.spawn(SpawnRequest(name=names[-1], x=float(x), y=float(y), yaw=float(rng.uniform(-3, 3))))
+
+    def send(name: str) -> None:
+        here = where(sim, name)
+        while True:
+            x, y = points[rng.integers(len(points))]
+            if math.hypot(x - here[0], y - here[1]) > 1.0:
+                nav.goal(name, burger, NavigateRequest(x=float(x), y=float(y), tolerance=0.1), sim.time)
+                return
+
+    for name in names:
+        send(name)
+    reached = dict.fromkeys(names, 0)
+    longest = 0.0
+    for _ in range(30 * 300):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        for r in nav.take_events().results:
+            reached[r.robot] += r.status == "reached"
+            longest = max(longest, r.navigation_time)
+            send(r.robot)
+    assert min(reached.values()) >= 3, reached
+    assert sum(reached.values()) >= 100, reached
+    running = max(sim.time - robot.started for robot in nav.robots.values())
+    assert max(longest, running) < 2 * PATIENCE_S  # nothing hangs
