@@ -233,7 +233,7 @@ class FleetClient:
         for r in requests:
             if not isinstance(r, SpawnRequest):
                 raise TypeError(f"spawn_many takes SpawnRequest(name=..., x=..., y=...) items, got {r!r}")
-        return self._pipelined(self.keys.spawn, requests, window)
+        return self._pipelined([(self.keys.spawn, r.name, r) for r in requests], RobotRecord, window)
 
     def delete_many(self, names: Iterable[str], window: int = PIPELINE_WINDOW) -> list[RobotRecord]:
         """Delete these robots in this order, pipelined as :meth:`spawn_many`; their last
@@ -243,36 +243,37 @@ class FleetClient:
             if not isinstance(n, str):
                 raise TypeError(f"delete_many takes robot names, got {n!r}")
             requests.append(DeleteRequest(name=n))
-        return self._pipelined(self.keys.delete, requests, window)
+        return self._pipelined([(self.keys.delete, r.name, r) for r in requests], RobotRecord, window)
 
-    def _pipelined(self, key: str, requests: Sequence[SpawnRequest | DeleteRequest], window: int) -> list[RobotRecord]:
-        """Send ``requests`` on ``key`` in order, at most ``window`` unanswered at a time; each
-        one answered as :meth:`delete` takes its answer (in a shared fleet the robot's daemon
-        answers, others may say not found)."""
+    def _pipelined(self, sends: Sequence[tuple[str, str, object]], reply_type: type[T], window: int) -> list[T]:
+        """Send each (key, whom, request) in order, at most ``window`` unanswered at a time;
+        the replies in order, each one answered as :meth:`delete` takes its answer (in a shared
+        fleet the robot's daemon answers, others may say not found). A refusal is raised once
+        all were answered (the first one, naming ``whom``); the others stand."""
         if window < 1:
             raise ValueError(f"window must be at least 1, got {window}")
-        in_flight: collections.deque[tuple[SpawnRequest | DeleteRequest, Any]] = collections.deque()
-        records: list[RobotRecord] = []
+        in_flight: collections.deque[tuple[str, str, Any]] = collections.deque()
+        out: list[T] = []
         refusal: FleetError | None = None
 
         def answer() -> None:
             nonlocal refusal
-            request, replies = in_flight.popleft()
+            key, whom, replies = in_flight.popleft()
             try:
-                records.append(self._answers(key, replies, RobotRecord, self.timeout)[0])
+                out.append(self._answers(key, replies, reply_type, self.timeout)[0])
             except FleetError as e:
                 if refusal is None:
-                    refusal = FleetError(e.code, f"{request.name}: {e.message}", e.field)
+                    refusal = FleetError(e.code, f"{whom}: {e.message}", e.field)
 
-        for request in requests:
-            in_flight.append((request, self._ask(key, request, self.timeout)))
+        for key, whom, request in sends:
+            in_flight.append((key, whom, self._ask(key, request, self.timeout)))
             if len(in_flight) >= window:
                 answer()
         while in_flight:
             answer()
         if refusal is not None:
             raise refusal
-        return records
+        return out
 
     def delete(self, name: str) -> RobotRecord:
         """Delete a robot by name or namespace; returns its last record. (In a shared fleet
@@ -323,30 +324,8 @@ class FleetClient:
         """Send many robots their goals without waiting for each reply (as :meth:`spawn_many`);
         the replies in order. A refused goal raises the first refusal, naming the robot, once
         all were answered (the others stand)."""
-        if window < 1:
-            raise ValueError(f"window must be at least 1, got {window}")
-        in_flight: collections.deque[tuple[str, Any]] = collections.deque()
-        replies: list[NavigateReply] = []
-        refusal: FleetError | None = None
-
-        def answer() -> None:
-            nonlocal refusal
-            robot, pending = in_flight.popleft()
-            try:
-                replies.append(self._answers(self.keys.navigate(robot), pending, NavigateReply, self.timeout)[0])
-            except FleetError as e:
-                if refusal is None:
-                    refusal = FleetError(e.code, f"{robot}: {e.message}", e.field)
-
-        for robot, req in robot_goals:
-            in_flight.append((robot, self._ask(self.keys.navigate(robot), req, self.timeout)))
-            if len(in_flight) >= window:
-                answer()
-        while in_flight:
-            answer()
-        if refusal is not None:
-            raise refusal
-        return replies
+        return self._pipelined([(self.keys.navigate(robot), robot, req) for robot, req in robot_goals],
+                               NavigateReply, window)  # fmt: skip
 
     def cancel_goal(self, robot: str, goal_id: str = "") -> NavigationResult:
         """End the robot's goal (``goal_id`` empty: whichever it has); the goal's result."""
