@@ -53,6 +53,7 @@ from simd.nav.cells import cell_size_for
 from simd.nav.costmap import Costmap, Grid
 from simd.nav.floor import Floor
 from simd.nav.follow import LOOKAHEAD_M, Limits, along, pursue, turn_to, wrap
+from simd.nav.guards import too_close, would_crowd
 from simd.nav.lidar_guard import LOOK_AHEAD_M, LidarGuard
 from simd.nav.report import NavEvents, goal_pose, path_message, pose, summary_row
 from simd.nav.robot import NavRobot
@@ -85,8 +86,6 @@ MARK_S = 30.0
 PATIENCE_S = 120.0
 #: commit to the next cell when this close (in cells) to the centre of the last one held
 DECIDE_WITHIN_CELLS = 0.6
-#: a step in which the robot's body would enter a cell another robot holds is not taken
-GUARD_S = 0.1
 #: a goal driven (not waiting, not making way) for its patience without getting this much (m)
 #: nearer fails (``blocked``): a robot that keeps trying and getting nowhere says so
 PROGRESS_M = 0.1
@@ -95,10 +94,6 @@ PROGRESS_M = 0.1
 FACING_RAD, CORNER_REACHED_M = 0.05, 0.03
 #: a robot whose way runs this far (m) from the path it told has it told again, at most this often (s)
 OFF_PATH_M, RETELL_S = 0.3, 1.0
-#: the deceleration the guard counts on (the wheels manage 1 m/s^2) and its sampling step (m)
-GUARD_DECEL, GUARD_STEP_M = 0.8, 0.02
-#: nor one that brings two robots' circumscribed circles closer than this (m) to each other
-GUARD_MARGIN_M = 0.02
 
 
 @dataclass(frozen=True)
@@ -469,14 +464,14 @@ class Navigator:
         room = np.minimum(room, lidar_room)
         v, w = pursue(x, y, yaw, aim_x, aim_y, room, limits)
         v_now = np.abs(table.vx[rows])
-        crowd = self._would_crowd(driven, x, y, yaw, v, v_now)
+        crowd = would_crowd(self.floor, driven, x, y, yaw, v, v_now)
         if crowd.any():  # cutting across would touch another's cells: by the way's first point
             ks = np.flatnonzero(crowd)
             first = np.array([_first_step(ways[j]) for j in ks.tolist()])
             sub = Limits(limits.max_v[ks], limits.max_w[ks])
             dist = np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks])
             v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], np.minimum(room[ks], dist), sub)
-            still = self._would_crowd(driven, x, y, yaw, v, v_now)
+            still = would_crowd(self.floor, driven, x, y, yaw, v, v_now)
             if still.any():  # even that arc would: stop, and turn on the spot to face the first point
                 js = np.flatnonzero(still)
                 pts = np.array([_first_step(ways[j]) for j in js.tolist()])
@@ -486,7 +481,7 @@ class Navigator:
                 v[js] = 0.0
                 for j, (cx, cy) in zip(js.tolist(), pts.tolist(), strict=True):
                     driven[j].corner = (cx, cy)  # and aims there, not round it, until it is there
-        v = np.where(self._too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
+        v = np.where(too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))
             self._retell_if_off(robot, ways[k], now)
@@ -504,59 +499,6 @@ class Navigator:
                 robot.state = "waiting"
             else:
                 robot.state = "driving"
-
-    def _would_crowd(
-        self, driven: list[NavRobot], x: F64, y: F64, yaw: F64, v: F64, v_now: F64
-    ) -> npt.NDArray[np.bool_]:
-        """Whether each robot's body, somewhere along the way it goes before it could stop
-        again (one control period at the new speed, plus braking from the speed it has now),
-        would reach into cells another robot holds: a last guard under the floor's rules."""
-        floor = self.floor
-        horizon = v * GUARD_S + v_now * GUARD_S + v_now * v_now / (2.0 * GUARD_DECEL)
-        out = np.zeros(len(driven), dtype=bool)
-        for k in np.flatnonzero(v > 0).tolist():
-            c, s = math.cos(yaw[k]), math.sin(yaw[k])
-            for d in np.arange(GUARD_STEP_M, float(horizon[k]) + GUARD_STEP_M, GUARD_STEP_M).tolist():
-                if floor.intrudes(driven[k], float(x[k] + d * c), float(y[k] + d * s)):
-                    out[k] = True
-                    break
-        return out
-
-    def _too_close(
-        self, driven: list[NavRobot], rows: I64, table: RobotTable, x: F64, y: F64, yaw: F64, v: F64
-    ) -> npt.NDArray[np.bool_]:
-        """Whether each robot, GUARD_S ahead at its speed, would come closer to another robot
-        than their two circles with margins allow: the last guard, on the true poses, whatever
-        the floor's cells say (a robot that strayed, one pushed, one driven by teleop)."""
-        out = np.zeros(len(driven), dtype=bool)
-        moving = np.flatnonzero(v > 0)
-        if len(moving) == 0 or len(table.x) < 2:
-            return out
-        ax, ay = table.x, table.y
-        reach = (
-            2 * (float(np.max(table.outline[:, :, 0] ** 2 + table.outline[:, :, 1] ** 2)) ** 0.5) + 2 * GUARD_MARGIN_M
-        )
-        keys = np.floor(ax / reach).astype(np.int64) * 1_000_003 + np.floor(ay / reach).astype(np.int64)
-        buckets: dict[int, list[int]] = {}
-        for i, key in enumerate(keys.tolist()):
-            buckets.setdefault(key, []).append(i)
-        step = v * GUARD_S
-        for k in moving.tolist():
-            i = int(rows[k])
-            nx, ny = x[k] + step[k] * math.cos(yaw[k]), y[k] + step[k] * math.sin(yaw[k])
-            bx, by = math.floor(x[k] / reach), math.floor(y[k] / reach)
-            r_me = driven[k].model.radius + GUARD_MARGIN_M
-            for dx in (-1, 0, 1):
-                for dy in (-1, 0, 1):
-                    for j in buckets.get((bx + dx) * 1_000_003 + (by + dy), ()):
-                        if j == i:
-                            continue
-                        need = r_me + float(np.hypot(*table.outline[j].T).max()) + GUARD_MARGIN_M
-                        now_d = math.hypot(ax[j] - x[k], ay[j] - y[k])
-                        next_d = math.hypot(ax[j] - nx, ay[j] - ny)
-                        if next_d < need and next_d < now_d:
-                            out[k] = True
-        return out
 
     def _mark_seen(self, robot: NavRobot, now: float) -> None:
         """What the lidar keeps seeing in the way goes on this robot's map; then a new plan."""
