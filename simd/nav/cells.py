@@ -69,7 +69,6 @@ MARGIN_M = 0.02
 TRACKING_M = 0.03
 #: the eight moves as (d_row, d_col), axis moves first
 MOVES: tuple[tuple[int, int], ...] = ((0, 1), (1, 0), (0, -1), (-1, 0), (1, 1), (1, -1), (-1, -1), (-1, 1))
-SQRT2 = math.sqrt(2.0)
 # the moves that leave a cell upwards (to a smaller row), downwards, to the left, to the right
 _UP, _DOWN = [k for k, m in enumerate(MOVES) if m[0] < 0], [k for k, m in enumerate(MOVES) if m[0] > 0]
 _LEFT, _RIGHT = [k for k, m in enumerate(MOVES) if m[1] < 0], [k for k, m in enumerate(MOVES) if m[1] > 0]

@@ -187,25 +187,3 @@ class Costmap:
         cell = self.grid.cell(x, y)
         return None if cell is None else float(self.clearance[cell])
 
-    def nearest_free(self, model: RobotModel, x: float, y: float, within: float) -> tuple[int, int] | None:
-        """The cell nearest (x, y), within ``within`` m, where ``model`` can stand (a robot
-        spawned against a wall plans from the closest such cell)."""
-        g = self.grid
-        k = max(1, math.ceil(within / g.resolution))
-        col = math.floor((x - g.x0) / g.resolution)
-        row = math.floor((y - g.y0) / g.resolution)
-        r0, r1 = max(0, row - k), min(g.height, row + k + 1)
-        c0, c1 = max(0, col - k), min(g.width, col + k + 1)
-        if r0 >= r1 or c0 >= c1:
-            return None
-        free = np.isfinite(self.costs(model)[r0:r1, c0:c1])
-        rr, cc = np.nonzero(free)
-        if rr.size == 0:
-            return None
-        cx = g.x0 + (cc + c0 + 0.5) * g.resolution
-        cy = g.y0 + (rr + r0 + 0.5) * g.resolution
-        d2 = (cx - x) ** 2 + (cy - y) ** 2
-        i = int(np.argmin(d2))
-        if d2[i] > within * within:
-            return None
-        return int(rr[i] + r0), int(cc[i] + c0)

@@ -34,56 +34,6 @@ PLAN_ANGULAR_DECEL = 4.0
 REGULATE_RADIUS_M = 0.25
 
 
-#: how many segments ahead of the last one a robot's projection looks
-SEARCH_SEGMENTS = 4
-#: each robot's path distances are shifted by this times its row, to search all at once
-_STRIDE = 1.0e7
-
-
-@dataclass
-class PathBank:
-    """Paths of several robots, concatenated: robot ``i`` (a row of the bank) owns points
-    ``offset[i] : offset[i] + count[i]``, so that the whole fleet is projected on its paths in
-    a few numpy operations."""
-
-    points: F64
-    cum: F64  # path distance at each point (per robot, from 0)
-    offset: npt.NDArray[np.int64]
-    count: npt.NDArray[np.int64]
-
-    @classmethod
-    def of(cls, paths: list[F64]) -> PathBank:
-        if not paths:
-            return cls(np.zeros((0, 2)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
-        counts = np.array([len(p) for p in paths], dtype=np.int64)
-        offset = np.concatenate(([0], np.cumsum(counts)[:-1])).astype(np.int64)
-        cum = np.concatenate([np.concatenate(([0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T)))) for p in paths])
-        return cls(np.concatenate(paths), cum, offset, counts)
-
-    def length(self) -> F64:
-        last: F64 = self.cum[self.offset + self.count - 1]
-        return last
-
-    def project(self, x: F64, y: F64, seg: npt.NDArray[np.int64]) -> tuple[npt.NDArray[np.int64], F64]:
-        """Each robot's path distance at its position: the nearest point on segments ``seg ..
-        seg + SEARCH_SEGMENTS`` (never behind ``seg``, so a path that passes the same place
-        twice is followed in order). The new segment indices and the distances."""
-        nseg = np.maximum(self.count - 1, 1)
-        cand = np.minimum(seg[:, None] + np.arange(SEARCH_SEGMENTS + 1)[None, :], (nseg - 1)[:, None])
-        a = self.offset[:, None] + cand
-        b = np.minimum(a + 1, (self.offset + self.count - 1)[:, None])
-        ax, ay = self.points[a, 0], self.points[a, 1]
-        dx, dy = self.points[b, 0] - ax, self.points[b, 1] - ay
-        len2 = np.maximum(dx * dx + dy * dy, 1e-12)
-        t = np.clip(((x[:, None] - ax) * dx + (y[:, None] - ay) * dy) / len2, 0.0, 1.0)
-        ex, ey = x[:, None] - (ax + t * dx), y[:, None] - (ay + t * dy)
-        best = np.argmin(ex * ex + ey * ey, axis=1)
-        rows = np.arange(len(x))
-        ia, ib = a[rows, best], b[rows, best]
-        dist: F64 = self.cum[ia] + t[rows, best] * (self.cum[ib] - self.cum[ia])
-        return cand[rows, best].astype(np.int64), dist
-
-
 def along(px: F64, py: F64, lookahead: float) -> tuple[F64, F64, F64]:
     """For short polylines, one per row of ``px``/``py`` (n, k; the robot's position first,
     rows padded by repeating their last point): the point ``lookahead`` along each (or its

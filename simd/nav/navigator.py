@@ -84,8 +84,6 @@ BLOCKED_REPLAN_S = 2.0
 MARK_S = 30.0
 #: a robot that has had no way forward this long fails with ``blocked`` (s of sim time)
 PATIENCE_S = 120.0
-#: commit to the next cell when this close (in cells) to the centre of the last one held
-DECIDE_WITHIN_CELLS = 0.6
 #: a goal driven (not waiting, not making way) for its patience without getting this much (m)
 #: nearer fails (``blocked``): a robot that keeps trying and getting nowhere says so
 PROGRESS_M = 0.1

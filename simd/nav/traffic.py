@@ -189,15 +189,6 @@ class Traffic:
         m.waiting_for = FREE
         self._let_go_unneeded(m)
 
-    def _sides(self, a: int, b: int) -> tuple[int, ...]:
-        """The two side cells of a diagonal step from a to b (none for an axis step)."""
-        w = self.graph.width
-        ra, ca = divmod(a, w)
-        rb, cb = divmod(b, w)
-        if ra != rb and ca != cb:
-            return (ra * w + cb, rb * w + ca)
-        return ()
-
     # -- deciding --------------------------------------------------------------------------------
 
     def begin_round(self) -> None:
@@ -407,11 +398,6 @@ class Traffic:
                 break
             out.append(c)
         return out
-
-    def held_by_others(self, cells: I64, slot: int) -> npt.NDArray[np.bool_]:
-        o = self.owner[cells]
-        taken: npt.NDArray[np.bool_] = (o != FREE) & (o != slot)
-        return taken
 
     def hold_free(self, m: Mover, cells: tuple[int, ...]) -> bool:
         """Take ``cells`` if every one is free or the robot's already (all or none)."""
