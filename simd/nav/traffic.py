@@ -197,16 +197,19 @@ class Traffic:
         self.decided.clear()
         for m in self.movers.values():
             for k, cells in enumerate(m.needs):
-                if not self._promise_broken(m, cells):
-                    continue
-                for later in m.needs[k:]:
-                    for c in later:
-                        if self.pending[c] == m.slot:
-                            self.pending[c] = FREE
-                del m.route[k:]
-                del m.needs[k:]
-                self._let_go_unneeded(m)
-                break
+                if self._promise_broken(m, cells):
+                    self._cut_route(m, k)
+                    break
+
+    def _cut_route(self, m: Mover, k: int) -> None:
+        """The robot's route from its ``k``-th step on is given up: promises and cells too."""
+        for later in m.needs[k:]:
+            for c in later:
+                if self.pending[c] == m.slot:
+                    self.pending[c] = FREE
+        del m.route[k:]
+        del m.needs[k:]
+        self._let_go_unneeded(m)
 
     def _promise_broken(self, m: Mover, cells: tuple[int, ...]) -> bool:
         """Whether a cell promised to ``m`` is held by a robot that no longer leaves it, or
@@ -308,11 +311,14 @@ class Traffic:
             if n == m.cell or n in m.route or n == given:
                 continue  # (never back over its own route, nor into a cell it gave way from)
             if float(m.dist[n]) >= here and not (leave & forbid) and depth == 0:
-                break  # staying is at least as good as anything left (and nobody needs its cells)
+                continue  # no nearer: staying is as good (and nobody needs its cells); a later one may be
             need = self.graph.sweep(frontier, k)
             if n in forbid:
                 continue  # where a robot pushing it must go, or stands
-            if any(self.pending[c] not in (FREE, m.slot) for c in need):
+            promised = {int(self.pending[c]) for c in need} - {FREE, m.slot}
+            if promised:  # promised to a robot following another out of it: wait behind them
+                if m.waiting_for == FREE:
+                    m.waiting_for = min(promised)
                 continue
             owners = {int(self.owner[c]) for c in need} - {FREE, m.slot}
             if not owners:
