@@ -169,6 +169,21 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
         "in FRAME (leave it off when SLAM publishes map -> <ns>/odom)",
     )
     g.add_argument(
+        "--ros-tf",
+        choices=("global", "namespaced"),
+        default="global",
+        help="global: every robot's transforms on /tf and /tf_static, frames prefixed by the namespace (TB3_1/odom, "
+        "the TurtleBot3 multi-robot launch); namespaced: each robot's on /<ns>/tf and /<ns>/tf_static, frames "
+        "unprefixed (odom, base_footprint), as nav2_bringup's multi-robot launches read them (default: %(default)s)",
+    )
+    g.add_argument(
+        "--ros-localization",
+        action="store_true",
+        help="localization for free, as nav2_loopback_sim: map -> odom from the ground truth in every robot's tree, "
+        "/map drawn from the world (transient local), and /<ns>/initialpose puts the robot there; Nav2 then runs "
+        "without AMCL or SLAM",
+    )
+    g.add_argument(
         "--ros-serve-router",
         action="store_true",
         help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed)",
@@ -189,6 +204,11 @@ def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int,
     frame = args.ros_world_frame
     if frame is not None and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*(/[A-Za-z0-9_]+)*", frame):
         raise ValueError(f"--ros-world-frame must be a tf frame name like 'world' (no leading '/'), got {frame!r}")
+    if args.ros_localization and frame is not None:
+        raise ValueError(
+            f"--ros-localization hangs every robot's odom from 'map', --ros-world-frame from {frame!r}: a frame "
+            "has one parent, leave one out"
+        )
     if args.ros_serve_router and args.ros_mode == "client":
         raise ValueError(
             "--ros-serve-router makes simd the ROS router, which is no client: leave out --ros-mode client"
@@ -378,7 +398,10 @@ def main(argv: list[str] | None = None) -> int:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
             from simd.adapters.ros2.shared_fleet import SharedFleet
 
-            options = RosOptions(ros_domain, ros_distro, args.ros_world_frame)  # type: ignore[arg-type]
+            options = RosOptions(
+                ros_domain, ros_distro, args.ros_world_frame,  # type: ignore[arg-type]
+                namespaced_tf=args.ros_tf == "namespaced", localization=args.ros_localization,
+            )  # fmt: skip
             shared = SharedFleet(session, keys, args.id) if args.join else None
             ros_adapter = Ros2Adapter(ros_session, engine, options, shared)
             how = "serving as the router on" if args.ros_serve_router else "joining the router at"
@@ -468,4 +491,3 @@ def _resume_goals(sim: Simulation, navigator: Navigator | None, goals: list[Navi
 
 if __name__ == "__main__":
     sys.exit(main())
-

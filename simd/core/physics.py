@@ -96,9 +96,10 @@ class Physics:
             shapes.append(s)
         return body, shapes
 
-    def blocker(self, model: RobotModel, x: float, y: float, yaw: float) -> int | None:
+    def blocker(self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None) -> int | None:
         """What the footprint at this pose would overlap: -1 for static geometry, a robot
-        id for a robot, None if the place is free."""
+        id for a robot, None if the place is free. Robot ``ignore`` does not count (a robot
+        being moved may overlap where it stands now)."""
         # one probe body per model, moved from query to query (never added to the space):
         # placing a thousand robots asks this some ten thousand times
         probe = self._probes.get(model.name)
@@ -116,7 +117,7 @@ class Physics:
                 if other.body is self.space.static_body:
                     return -1
                 rid = getattr(other.body, "rid", None)
-                if rid is not None:
+                if rid is not None and rid != ignore:
                     return int(rid)
         return None
 

@@ -178,6 +178,12 @@ class Simulation:
                     fname,
                 )
         x, y, yaw = float(req.x), float(req.y), wrap_angle(float(req.yaw))
+        self._check_place(model, x, y, yaw)
+        return name, namespace, model, x, y, yaw
+
+    def _check_place(self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None) -> None:
+        """Refuse a pose that puts the model outside the world or on a wall or another robot
+        (robot ``ignore``, the one being moved, does not count)."""
         c, s = math.cos(yaw), math.sin(yaw)
         ox = x + model.outline[:, 0] * c - model.outline[:, 1] * s
         oy = y + model.outline[:, 0] * s + model.outline[:, 1] * c
@@ -189,7 +195,7 @@ class Simulation:
                 f"{self.world.name!r}: x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}]",
                 "x",
             )
-        hit = self.physics.blocker(model, x, y, yaw)
+        hit = self.physics.blocker(model, x, y, yaw, ignore)
         if hit is not None:
             if hit < 0:
                 what = "a wall or obstacle"
@@ -200,7 +206,6 @@ class Simulation:
                 f"a {model.name} at ({x:g}, {y:g}, yaw {yaw:.3g}) would overlap {what}",
                 "x",
             )
-        return name, namespace, model, x, y, yaw
 
     def spawn(
         self,
@@ -261,6 +266,34 @@ class Simulation:
             self._phase_load[robot.scan_phase] -= 1
         self.robots.remove_many(found)
         return last
+
+    def place(self, key: str, x: float, y: float, yaw: float) -> RobotState:
+        """Move a robot (name or namespace) to a pose at once, at rest, as ROS's ``initialpose``
+        moves nav2_loopback_sim's robot; or raise :class:`FleetError` and move nothing. The
+        rules are a spawn's (finite, inside the world, clear of walls and other robots), and
+        its odometry starts again at the new pose, as a spawned robot's does."""
+        robot = self.robots.find(key)
+        if robot is None:
+            raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
+        for fname, v in (("x", x), ("y", y), ("yaw", yaw)):
+            if not math.isfinite(v):
+                raise FleetError(ErrorCode.NON_FINITE, f"{fname} must be finite, got {v}", fname)
+        x, y, yaw = float(x), float(y), wrap_angle(float(yaw))
+        self._check_place(robot.model, x, y, yaw, ignore=robot.rid)
+        t = self.robots
+        i = t.row(robot)
+        self.physics.place(robot.rid, x, y, yaw)
+        # new arrays, not writes into the old ones: a snapshot handed out may still hold them
+        for name, value in (("x", x), ("y", y), ("yaw", yaw), ("vx", 0.0), ("vy", 0.0), ("wz", 0.0)):
+            column = getattr(t, name).copy()
+            column[i] = value
+            setattr(t, name, column)
+        odom = [a.copy() for a in (t.odom_x, t.odom_y, t.odom_yaw)]
+        odom[0][i], odom[1][i], odom[2][i] = x, y, yaw
+        t.odom_x, t.odom_y, t.odom_yaw = odom
+        for a in (t.target_v, t.target_w, t.wheel_l, t.wheel_r):
+            a[i] = 0.0
+        return self._state_at(robot, i)
 
     # -- control ------------------------------------------------------------------------
 
@@ -393,6 +426,7 @@ class Simulation:
             scan_rows=scans,
             epoch=self.epoch,
             scan_index=due,
+            true_pose=(t.x, t.y, t.yaw) if cfg.odom_noise > 0.0 else None,
         )
 
     def _due_rows(self, t: RobotTable) -> list[I64]:

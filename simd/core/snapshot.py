@@ -49,7 +49,8 @@ class TickSnapshot:
     """What one tick measured: odometry of every robot, scans of those due.
 
     ``x``, ``y`` and ``yaw`` are the odometry's pose: the true pose, unless the wheels slip
-    (``SimConfig.odom_noise``); the scans are taken from the true pose.
+    (``SimConfig.odom_noise``); then ``true_pose`` holds the true one (None: the same). The
+    scans are taken from the true pose.
 
     Rows of the odometry columns follow ``namespaces``; rows of ``scans`` follow
     ``scan_namespaces``. ``epoch`` counts resets: two snapshots with the same tick number
@@ -70,6 +71,13 @@ class TickSnapshot:
     epoch: int = 0
     #: the table rows of ``scan_namespaces`` (rows of this tick's ``namespaces``)
     scan_index: I64 = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    #: the true (x, y, yaw) columns when the odometry drifts from them, else None
+    true_pose: tuple[F64, F64, F64] | None = None
+
+    @property
+    def truth(self) -> tuple[F64, F64, F64]:
+        """The true pose columns (the odometry's when it is exact)."""
+        return self.true_pose if self.true_pose is not None else (self.x, self.y, self.yaw)
 
     @property
     def scans(self) -> F32:

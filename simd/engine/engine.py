@@ -52,6 +52,7 @@ from simd.engine.ports import (
     Navigation,
     ObservedArrays,
     OwnRobots,
+    PlaceRequest,
     Reply,
     Result,
     RobotList,
@@ -76,7 +77,7 @@ SLICE_SECONDS = 0.02
 
 @dataclass
 class _Call:
-    request: Request | NavigationRequest
+    request: Request | NavigationRequest | PlaceRequest
     reply: Reply
 
 
@@ -216,6 +217,7 @@ class Engine:
             NavigateRequest: self._navigate,
             CancelRequest: self._cancel_goal,
             NavigationStateRequest: self._navigation_state,
+            PlaceRequest: self._place,
         }
 
     def attach(self, adapter: Adapter) -> None:
@@ -227,7 +229,7 @@ class Engine:
 
     # -- from any thread --------------------------------------------------------------------
 
-    def submit(self, request: Request | NavigationRequest, reply: Reply) -> None:
+    def submit(self, request: Request | NavigationRequest | PlaceRequest, reply: Reply) -> None:
         """Queue a request for the simulation thread, which calls ``reply`` once. Raises
         FleetError (busy) at once when the queue is full, so a flood never grows without
         bound and ``reply`` is never called for it."""
@@ -421,6 +423,16 @@ class Engine:
         self._changed()
         log.info("deleted %s", last.name)
         return last
+
+    def _place(self, req: PlaceRequest, reply: Reply) -> Result:
+        state = self.sim.place(req.robot, req.x, req.y, req.yaw)
+        self._pending_commands.pop(state.namespace, None)  # a command sent before the move does not outlive it
+        if self.navigator is not None:
+            self.navigator.placed(state.namespace, self.sim.time)
+            self._tell_navigation()
+        self._changed()
+        log.info("placed %s at (%.3f, %.3f, %.3f)", state.name, state.x, state.y, state.yaw)
+        return state
 
     def _list(self, req: ListRequest, reply: Reply) -> Result:
         return RobotList(self.sim.time, self.sim.states())

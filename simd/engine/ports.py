@@ -69,6 +69,18 @@ Event = Spawned | Deleted | WorldReset | Navigation
 
 
 @dataclass(frozen=True)
+class PlaceRequest:
+    """Put a robot (name or namespace) at a pose at once, at rest: ROS's ``initialpose``
+    (simd/adapters/ros2/localization.py). An engine request that no fleet protocol key carries;
+    answered with the robot's :class:`~simd.core.snapshot.RobotState` there."""
+
+    robot: str
+    x: float
+    y: float
+    yaw: float
+
+
+@dataclass(frozen=True)
 class ScanRow:
     """A robot's latest scan: row ``row`` of a tick's scans (read when asked for: the lidar
     may still be casting it)."""

@@ -145,6 +145,15 @@ def clearance_field(world: WorldGeometry, grid: Grid, reach: float) -> F32:
     return out.astype(np.float32)
 
 
+def occupied_cells(world: WorldGeometry, grid: Grid) -> npt.NDArray[np.bool_]:
+    """The cells a wall or obstacle reaches into, as a map_server map marks them: a cell whose
+    centre lies within half a cell of the geometry (a wall thinner than a cell still leaves a
+    closed line of cells). Rows from the smallest y, as nav_msgs/OccupancyGrid's."""
+    half = grid.resolution / 2.0
+    occupied: npt.NDArray[np.bool_] = clearance_field(world, grid, grid.resolution) < half
+    return occupied
+
+
 @dataclass
 class Costmap:
     """The world's clearances on a grid, and the cost of every cell for each model (made when
@@ -186,4 +195,3 @@ class Costmap:
         """The clearance of the cell holding (x, y), or None off the grid."""
         cell = self.grid.cell(x, y)
         return None if cell is None else float(self.clearance[cell])
-

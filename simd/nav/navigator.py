@@ -251,6 +251,20 @@ class Navigator:
         self._snaps.clear()
         self._rows_of = self._drive_of = None
 
+    def placed(self, namespace: str, now: float) -> None:
+        """The robot was put somewhere else (ROS's ``initialpose``): its goal is cancelled, as
+        the way it was taking starts where it no longer is, and the cells it held are free."""
+        robot = self.robots.get(namespace)
+        if robot is None:
+            return
+        if robot.active:
+            self._end(robot, "failed", "cancelled", f"robot {namespace!r} was placed elsewhere", now)
+        if self._floor is not None:
+            self._floor.remove(robot)
+            self._floor.add(robot)
+        robot.xy = None
+        self._drive_of = None
+
     def goals(self) -> list[NavigateRequest]:
         """The active goals, each with its robot and id (what a state file keeps)."""
         return [

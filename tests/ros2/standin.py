@@ -369,9 +369,17 @@ class StandIn:
         self._entities.append(sub)
         return out
 
-    def publisher(self, name: str, typename: str) -> Callable[..., None]:
+    def publisher(self, name: str, typename: str, matched: float = 0.0) -> Callable[..., None]:
+        """A publisher's put; with ``matched``, first wait up to that many seconds until a
+        subscriber matches (what rclcpp's ``wait_for_matched``-style helpers do), so that the
+        first message is not sent into the void."""
         pub = self.session.declare_publisher(self.key(name, typename))
         self._entities.append(pub)
+        deadline = time.monotonic() + matched
+        status = pub.matching_status
+        while not status.matching and time.monotonic() < deadline:  # type: ignore[attr-defined]  # stub: bool
+            time.sleep(0.02)
+            status = pub.matching_status
         gid = hashlib.md5(f"{name}{typename}".encode()).digest()
         seq = [0]
 

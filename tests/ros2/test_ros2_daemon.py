@@ -340,6 +340,8 @@ def _reaches(frame: str, root: str, parents: dict[str, str]) -> bool:
         (["--ros-world-frame", "/world"], {}, "--ros-world-frame must be a tf frame name"),
         (["--ros-distro", "iron"], {}, "invalid choice"),
         (["--ros-serve-router", "--ros-mode", "client"], {}, "leave out --ros-mode client"),
+        (["--ros-localization", "--ros-world-frame", "world"], {}, "a frame has one parent"),
+        (["--ros-tf", "prefixed"], {}, "invalid choice"),
     ],
 )
 def test_bad_ros_flags_are_one_clear_line(args: list[str], env: dict[str, str], message: str) -> None:

@@ -14,7 +14,7 @@ import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
 from protocol.frames import Transform
-from simd.adapters.ros2 import cdr, gazebo_services, graph, interfaces
+from simd.adapters.ros2 import cdr, gazebo_services, graph, interfaces, tf_cdr
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.core.snapshot import TickSnapshot
 from tests.ros2 import standin
@@ -23,6 +23,7 @@ from tests.ros2.conftest import DATA
 MESSAGES = [
     "nav_msgs/msg/Odometry", "sensor_msgs/msg/LaserScan", "sensor_msgs/msg/Imu", "sensor_msgs/msg/JointState",
     "tf2_msgs/msg/TFMessage", "rosgraph_msgs/msg/Clock", "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped",
+    "nav_msgs/msg/OccupancyGrid", "geometry_msgs/msg/PoseWithCovarianceStamped",
 ]  # fmt: skip
 #: published values (rmw_zenoh's design document; `ros2 topic info -v` outputs) and, for the
 #: services, values computed by the reference's method and pinned here
@@ -181,22 +182,90 @@ def _check_odometry(enc: cdr.OdometryCdr, snap: TickSnapshot, rows: list[int], d
         assert payload[:4] == b"\x00\x01\x00\x00"
 
 
+def _odom_columns(snap: TickSnapshot, rows: list[int]) -> tf_cdr.PoseColumns:
+    idx = np.asarray(rows)
+    return snap.x[idx], snap.y[idx], snap.yaw[idx]
+
+
+def _transform(t: float, parent: str, child: str, x: float, y: float, yaw: float) -> Any:
+    return _t("geometry_msgs/msg/TransformStamped", header=_header(t, parent), child_frame_id=child,
+              transform=_t("geometry_msgs/msg/Transform", translation=_v3(x, y, 0), rotation=_q(yaw)))  # fmt: skip
+
+
 def test_tf_bytes_equal_rosbags() -> None:
-    enc = cdr.TfCdr()
+    """The fleet's /tf: every robot's odom -> base_footprint, prefixed; laid out again when the robots change."""
+    enc = tf_cdr.FleetTfCdr(lambda ns: [(f"{ns}/odom", f"{ns}/base_footprint")])
     for tick, rows in [(1, [2, 0, 3]), (2, [2, 0, 3]), (3, [0, 1, 2, 3]), (4, [1])]:
-        _check_tf(enc, _snapshot(tick), rows)
+        snap = _snapshot(tick)
+        names = tuple(NAMES[i] for i in rows)
+        ref = [_transform(snap.time, f"{NAMES[i]}/odom", f"{NAMES[i]}/base_footprint", snap.x[i], snap.y[i],
+                          snap.yaw[i]) for i in rows]  # fmt: skip
+        ours = enc.encode(snap.time, names, [_odom_columns(snap, rows)])
+        assert ours == _ref(_t("tf2_msgs/msg/TFMessage", transforms=ref), "tf2_msgs/msg/TFMessage")
 
 
-def _check_tf(enc: cdr.TfCdr, snap: TickSnapshot, rows: list[int]) -> None:
-    transforms = [
-        _t("geometry_msgs/msg/TransformStamped", header=_header(snap.time, f"{NAMES[i]}/odom"),
-           child_frame_id=f"{NAMES[i]}/base_footprint",
-           transform=_t("geometry_msgs/msg/Transform", translation=_v3(snap.x[i], snap.y[i], 0),
-                        rotation=_q(snap.yaw[i])))
-        for i in rows
-    ]  # fmt: skip
-    assert enc.encode(snap, rows) == _ref(_t("tf2_msgs/msg/TFMessage", transforms=transforms),
-                                                  "tf2_msgs/msg/TFMessage")  # fmt: skip
+def test_tf_with_map_to_odom_equals_rosbags() -> None:
+    """With localization each robot has two transforms, map -> odom first (frames of every length mod 4)."""
+    enc = tf_cdr.FleetTfCdr(lambda ns: [("map", f"{ns}/odom"), (f"{ns}/odom", f"{ns}/base_footprint")])
+    snap = _snapshot(9)
+    rows = [3, 1, 0, 2]
+    names = tuple(NAMES[i] for i in rows)
+    rng = np.random.default_rng(3)
+    corr = (rng.normal(size=4), rng.normal(size=4), rng.uniform(-3, 3, 4))
+    ref = []
+    for k, i in enumerate(rows):
+        ref.append(_transform(snap.time, "map", f"{NAMES[i]}/odom", corr[0][k], corr[1][k], corr[2][k]))
+        ref.append(_transform(snap.time, f"{NAMES[i]}/odom", f"{NAMES[i]}/base_footprint", snap.x[i], snap.y[i],
+                              snap.yaw[i]))  # fmt: skip
+    ours = enc.encode(snap.time, names, [corr, _odom_columns(snap, rows)])
+    assert ours == _ref(_t("tf2_msgs/msg/TFMessage", transforms=ref), "tf2_msgs/msg/TFMessage")
+
+
+@pytest.mark.parametrize("frames", [[("odom", "base_footprint")], [("map", "odom"), ("odom", "base_footprint")],
+                                    [("a", "bcdef")]])  # fmt: skip
+def test_each_robots_own_tf_equals_rosbags(frames: list[tuple[str, str]]) -> None:
+    """/<ns>/tf: one message per robot, unprefixed frames, laid out again when the count changes."""
+    enc = tf_cdr.RobotTfCdr(frames)
+    for tick, rows in [(1, [0, 1, 2, 3]), (2, [0, 1, 2, 3]), (3, [2])]:
+        snap = _snapshot(tick)
+        odom = _odom_columns(snap, rows)
+        poses = [(odom[0] + k, odom[1] - k, odom[2] * (k + 1)) for k in range(len(frames))]
+        out = enc.encode(snap.time, poses)
+        assert len(out) == len(rows)
+        for j, payload in enumerate(out):
+            ref = [_transform(snap.time, parent, child, poses[k][0][j], poses[k][1][j], poses[k][2][j])
+                   for k, (parent, child) in enumerate(frames)]  # fmt: skip
+            assert payload == _ref(_t("tf2_msgs/msg/TFMessage", transforms=ref), "tf2_msgs/msg/TFMessage")
+    assert enc.encode(1.0, [(np.zeros(0), np.zeros(0), np.zeros(0))] * len(frames)) == []
+
+
+def test_map_to_odom_takes_the_odometry_onto_the_truth() -> None:
+    rng = np.random.default_rng(5)
+    odom = (rng.normal(size=50), rng.normal(size=50), rng.uniform(-3.1, 3.1, 50))
+    truth = (rng.normal(size=50), rng.normal(size=50), rng.uniform(-3.1, 3.1, 50))
+    mx, my, myaw = tf_cdr.map_to_odom(odom, truth)
+    # map -> odom composed with odom -> base is the true pose
+    c, s = np.cos(myaw), np.sin(myaw)
+    np.testing.assert_allclose(mx + c * odom[0] - s * odom[1], truth[0], atol=1e-12)
+    np.testing.assert_allclose(my + s * odom[0] + c * odom[1], truth[1], atol=1e-12)
+    np.testing.assert_allclose(np.cos(myaw + odom[2]), np.cos(truth[2]), atol=1e-12)
+    np.testing.assert_allclose(np.sin(myaw + odom[2]), np.sin(truth[2]), atol=1e-12)
+    np.testing.assert_allclose(np.concatenate(tf_cdr.map_to_odom(odom, odom)), 0.0, atol=1e-12)
+
+
+def test_unprefixed_frames_of_odometry_scan_and_imu() -> None:
+    """Nav2's multi-robot layout: the robot's messages name its frames without the namespace."""
+    snap = _snapshot(4)
+    payload = cdr.OdometryCdr((1.0,) * 6, prefixed=False).encode(snap, [2])[0]
+    o: Any = JAZZY.deserialize_cdr(payload, "nav_msgs/msg/Odometry")
+    assert (o.header.frame_id, o.child_frame_id) == ("odom", "base_footprint")
+    assert o.pose.pose.position.x == snap.x[2]
+    scan = cdr.LaserScanCdr(0.0, 6.28, 6.28 / 359, 0.12, 3.5, 360, prefixed=False)
+    s: Any = JAZZY.deserialize_cdr(scan.encode("a", 1.0, np.ones(360, np.float32)), "sensor_msgs/msg/LaserScan")
+    assert s.header.frame_id == "base_scan"
+    imu: Any = JAZZY.deserialize_cdr(cdr.ImuCdr(prefixed=False).encode("a", 1.0, 0.1, 0.2, 0.3, 0.4),
+                                     "sensor_msgs/msg/Imu")  # fmt: skip
+    assert imu.header.frame_id == "imu_link"
 
 
 def test_static_tf_of_several_robots_equals_rosbags() -> None:
@@ -205,8 +274,8 @@ def test_static_tf_of_several_robots_equals_rosbags() -> None:
          (f"{ns}/base_link", f"{ns}/base_scan", (-0.032, 0.0, 0.172), (0.0, 0.0, 0.0, 1.0))]
         for ns in NAMES
     ]  # fmt: skip
-    blobs = [cdr.transform_elements((0, 0), tfs, first=i == 0) for i, tfs in enumerate(per_robot)]
-    ours = cdr.tf_message(sum(len(t) for t in per_robot), blobs)
+    blobs = [tf_cdr.transform_elements((0, 0), tfs, first=i == 0) for i, tfs in enumerate(per_robot)]
+    ours = tf_cdr.tf_message(sum(len(t) for t in per_robot), blobs)
     ref = [
         _t("geometry_msgs/msg/TransformStamped", header=_header(0.0, parent), child_frame_id=child,
            transform=_t("geometry_msgs/msg/Transform", translation=_v3(*xyz),
@@ -316,3 +385,21 @@ def test_other_xml_is_refused_with_a_clear_message(xml: str, start: str) -> None
 def test_yaw_from_quaternion(yaw: float) -> None:
     assert gazebo_services.yaw_of(0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)) == pytest.approx(yaw)
     assert gazebo_services.yaw_of(0.0, 0.0, 0.0, 0.0) == 0.0
+
+
+def test_the_map_message_is_the_world_drawn_as_rosbags_reads_it() -> None:
+    from simd.adapters.ros2.localization import occupancy_grid
+    from simd.core.worldfile import load_world
+    from simd.nav.costmap import Grid, occupied_cells
+
+    world = load_world("turtlebot3_world")
+    grid = Grid.covering(world)
+    payload = occupancy_grid(interfaces.typestore("jazzy"), world, 12.5, grid)
+    assert payload[:4] == b"\x00\x01\x00\x00"
+    m: Any = JAZZY.deserialize_cdr(payload, "nav_msgs/msg/OccupancyGrid")
+    assert (m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec) == ("map", 12, 500_000_000)
+    assert (m.info.width, m.info.height) == (grid.width, grid.height)
+    assert m.info.resolution == pytest.approx(grid.resolution)
+    assert (m.info.origin.position.x, m.info.origin.position.y, m.info.origin.orientation.w) == (-3.5, -3.6, 1.0)
+    cells = np.asarray(m.data).reshape(grid.height, grid.width)
+    np.testing.assert_array_equal(cells, np.where(occupied_cells(world, grid), 100, 0))

@@ -4,11 +4,12 @@ It joins a ROS domain as one more zenoh participant (its own session, beside the
 protocol's) and shows every robot the way the Gazebo TurtleBot3 does: ``/<ns>/odom``,
 ``/<ns>/scan``, ``/<ns>/imu``, ``/<ns>/joint_states`` and ``/<ns>/cmd_vel`` (Twist and
 TwistStamped), the whole fleet on ``/tf`` and each robot's fixed frames on ``/tf_static``
-(namespaced frames, so one tree holds every robot), sim time
-on ``/clock``, and gazebo_ros' ``/spawn_entity`` and ``/delete_entity``; with the navigator on,
-each robot also has Nav2's ``navigate_to_pose`` action, ``goal_pose`` and ``plan``
-(navigation.py). Liveliness tokens make all of it visible to ``ros2 node|topic|service|action
-list`` and RViz.
+(namespaced frames, so one tree holds every robot; or Nav2's multi-robot layout, a tree per
+robot on ``/<ns>/tf``: tf_layout.py), sim time on ``/clock``, and gazebo_ros' ``/spawn_entity``
+and ``/delete_entity``; with the navigator on, each robot also has Nav2's ``navigate_to_pose``
+action, ``goal_pose`` and ``plan`` (navigation.py); with localization, ``/map``, ``map`` ->
+``odom`` and ``/<ns>/initialpose`` (localization.py). Liveliness tokens make all of it visible
+to ``ros2 node|topic|service|action list`` and RViz.
 
 In a fleet shared by several daemons (``simd --join``) each daemon shows its own robots, under a
 node of its own (``/fleetsim_<id>``), and one of them speaks for the fleet: it alone publishes
@@ -34,10 +35,13 @@ from protocol.messages import Time
 from simd.adapters.ros2 import cdr, gazebo_services, graph, simulation_services
 from simd.adapters.ros2.command_intake import RosCommandIntake
 from simd.adapters.ros2.interfaces import Distro
+from simd.adapters.ros2.localization import RosLocalization
 from simd.adapters.ros2.navigation import RosNavigation
 from simd.adapters.ros2.robot_ports import Participant, RobotPorts, RosPublisher
 from simd.adapters.ros2.service_server import ServiceServer
 from simd.adapters.ros2.shared_fleet import FleetRequests, SharedFleet, Speaker, engine_ask
+from simd.adapters.ros2.tf_layout import TfLayout
+from simd.adapters.ros2.tf_topics import TfTopics
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
 from simd.core.snapshot import TickSnapshot
@@ -62,6 +66,15 @@ class RosOptions:
     distro: Distro = "jazzy"
     #: a frame every robot's odom hangs from (a fixed frame for RViz), or none
     world_frame: str | None = None
+    #: each robot's transforms on /<ns>/tf with unprefixed frames (Nav2's multi-robot layout)
+    #: instead of the fleet's /tf with prefixed ones
+    namespaced_tf: bool = False
+    #: /map, map -> odom from the ground truth and /<ns>/initialpose (no AMCL or SLAM needed)
+    localization: bool = False
+
+    @property
+    def layout(self) -> TfLayout:
+        return TfLayout(self.namespaced_tf, self.localization, self.world_frame)
 
 
 class Ros2Adapter:
@@ -74,34 +87,42 @@ class Ros2Adapter:
         self.engine = engine
         self.options = options
         p = self.participant = Participant(session, options.domain_id, options.distro)
+        self.layout = layout = options.layout
+        prefixed = not layout.namespaced
         spec = engine.sim.config.lidar
-        self._odom = cdr.OdometryCdr(ODOM_COVARIANCE_DIAGONAL)
+        self._odom = cdr.OdometryCdr(ODOM_COVARIANCE_DIAGONAL, prefixed)
         self._scan = cdr.LaserScanCdr(
-            spec.angle_min, spec.angle_max, spec.angle_increment, spec.range_min, spec.range_max, spec.samples
-        )
-        self._tf = cdr.TfCdr()
-        self._imu = cdr.ImuCdr()
+            spec.angle_min, spec.angle_max, spec.angle_increment, spec.range_min, spec.range_max, spec.samples,
+            prefixed,
+        )  # fmt: skip
+        self._imu = cdr.ImuCdr(prefixed)
         self._joints = cdr.JointStateCdr()
         self._dt = engine.sim.config.dt
         self._tokens: list[Any] = []
         node = self.node = p.node("/", node_name(shared.daemon_id if shared is not None else None))
         self._tokens.append(session.liveliness().declare_token(node.token()))
-        self.tf_pub = RosPublisher(p, node, p.topic("/tf", "tf2_msgs/msg/TFMessage"), graph.TF_QOS, self._tokens)
+        self.tf = TfTopics(p, node, layout, self._tokens)
+        self._time: float | None = None  # the latest sim time heard of
         self.robots: dict[str, RobotPorts] = {}
         self.outbox = Outbox("ros2-out")
         self.commands = RosCommandIntake(p, self._known)
         #: Nav2's navigate_to_pose, goal_pose and plan of each robot (not with --no-nav); a robot's
         #: goals go to this daemon's own engine, which navigates it, shared fleet or not
-        self.navigation = (
-            RosNavigation(p, engine.submit, self.outbox, options.world_frame) if engine.navigator is not None else None
-        )
+        self.navigation = RosNavigation(p, engine.submit, self.outbox, layout) if engine.navigator is not None else None
+        #: /map and /<ns>/initialpose (--ros-localization); each daemon of a shared fleet draws the
+        #: same world and places its own robots
+        self.localization = (
+            RosLocalization(p, node, engine.sim.world, engine.submit, self.outbox, self._known, options.world_frame,
+                            lambda: self._time or 0.0)
+            if layout.localization
+            else None
+        )  # fmt: skip
         # the fleet's voice (/clock and the services): declared while this daemon speaks for the
         # fleet, which a lone daemon always does; touched on the outbox thread only
         self.clock_pub: RosPublisher | None = None
         self.services: ServiceServer | None = None
         self._voice_tokens: list[Any] = []
         self._sent_stamp: tuple[int, int] | None = None  # the (sec, nanosec) last put on /clock
-        self._time: float | None = None  # the latest sim time heard of
         self.speaker: Speaker | None = None
         self._heard_speaker: str | None = None  # the speaker last logged
         self._closing = False
@@ -153,12 +174,15 @@ class Ros2Adapter:
         if self.navigation is not None:
             self.navigation.close_inputs()
         self.outbox.close()
+        if self.localization is not None:
+            self.localization.close()
         if self.navigation is not None:
             self.navigation.close()
         for ports in self.robots.values():
             ports.close()
         self.robots.clear()
-        self.tf_pub.undeclare()
+        if self.tf.fleet_pub is not None:
+            self.tf.fleet_pub.undeclare()
         undeclare_all(self._tokens)
 
     # -- the fleet's voice --------------------------------------------------------------------------
@@ -212,7 +236,7 @@ class Ros2Adapter:
     def _add_robot(self, namespace: str, model: Any) -> None:
         if namespace in self.robots:
             return
-        ports = self.robots[namespace] = RobotPorts(self.participant, namespace, model, self.options.world_frame)
+        ports = self.robots[namespace] = RobotPorts(self.participant, namespace, model, self.layout)
         if self.navigation is not None:
             self.navigation.add_robot(namespace, ports.node)
 
@@ -222,7 +246,7 @@ class Ros2Adapter:
             ports.close()
         if self.navigation is not None:
             self.navigation.remove_robot(namespace)
-        for enc in (self._odom, self._scan, self._tf, self._imu):
+        for enc in (self._odom, self._scan, self.tf, self._imu):
             enc.forget(namespace)
 
     def _reset(self) -> None:
@@ -244,16 +268,12 @@ class Ros2Adapter:
     def _publish_tick(self, snap: TickSnapshot) -> None:
         self._publish_clock(snap.time)
         p = self.participant
-        tf_wanted = self.tf_pub.wanted.matching
-        if not (tf_wanted or p.robot_interest):
+        if not (self.tf.wanted or p.robot_interest):
             return  # nobody reads any robot's topic: nothing per robot is built
         robots = self.robots
         ports = [robots.get(ns) for ns in snap.namespaces]
         now = time.time_ns()  # the attachments' source timestamp, once a tick
-        if tf_wanted:
-            rows = [i for i, q in enumerate(ports) if q is not None]
-            if rows:
-                self.tf_pub.put(self._tf.encode(snap, rows), now)
+        self.tf.publish(snap, ports, now)
         if p.odom_interest:
             if p.odom_interest.count >= len(robots):  # everybody's odometry is read: no need to ask
                 odom_rows = [i for i, q in enumerate(ports) if q is not None]

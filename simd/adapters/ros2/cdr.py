@@ -7,7 +7,10 @@ the numbers. The layout follows CDR as Fast-CDR writes it for rmw_zenoh: a 4-byt
 little-endian encapsulation header, then every primitive aligned to its size counted from the
 end of that header, strings as a uint32 length (NUL included) and the bytes. The tests check
 every encoder byte for byte against ``rosbags.serialize_cdr``, and the two decoders (the
-commands coming in) against ``rosbags.deserialize_cdr``.
+commands coming in) against ``rosbags.deserialize_cdr``. The TF messages are in tf_cdr.py.
+
+A robot's frames carry its namespace (``TB3_1/odom``, the fleet's one tree) unless an encoder is
+made with ``prefixed=False`` (``odom``: each robot's tree of its own, Nav2's multi-robot layout).
 """
 
 from __future__ import annotations
@@ -18,7 +21,7 @@ import struct
 import numpy as np
 import numpy.typing as npt
 
-from protocol.frames import Transform
+from protocol.frames import frame_id as robot_frame
 from protocol.messages import Time
 from simd.core.snapshot import TickSnapshot
 
@@ -61,6 +64,27 @@ def covariance(diagonal: tuple[float, ...]) -> bytes:
     return c.tobytes()
 
 
+def write_stamps(buf: npt.NDArray[np.uint8], stamp_at: npt.NDArray[np.intp], t: float) -> None:
+    """Write sim time ``t`` as builtin_interfaces/Time at int32 indices ``stamp_at`` of a laid-out buffer."""
+    i32 = buf.view(np.int32)
+    sec, nsec = stamp(t)
+    i32[stamp_at] = sec
+    i32[stamp_at + 1] = nsec
+
+
+def write_poses(
+    f64: npt.NDArray[np.float64], pose_at: npt.NDArray[np.intp],
+    x: npt.NDArray[np.float64], y: npt.NDArray[np.float64], yaw: npt.NDArray[np.float64],
+) -> None:  # fmt: skip
+    """Write planar poses at float64 indices ``pose_at`` of a laid-out buffer: x y (z stays 0),
+    then the yaw's quaternion (qx qy stay 0, qz qw)."""
+    half = yaw / 2.0
+    f64[pose_at] = x
+    f64[pose_at + 1] = y
+    f64[pose_at + 5] = np.sin(half)
+    f64[pose_at + 6] = np.cos(half)
+
+
 def _write_stamps_and_poses(
     buf: npt.NDArray[np.uint8], stamp_at: npt.NDArray[np.intp], pose_at: npt.NDArray[np.intp],
     snap: TickSnapshot, rows: npt.NDArray[np.intp],
@@ -68,16 +92,9 @@ def _write_stamps_and_poses(
     """Write the tick's stamp (int32 indices ``stamp_at``) and each robot's position and yaw
     quaternion (float64 indices ``pose_at``: x y z, then qx qy qz qw) into a laid-out buffer;
     returns its float64 view for the rest."""
-    i32 = buf.view(np.int32)
+    write_stamps(buf, stamp_at, snap.time)
     f64 = buf.view(np.float64)
-    sec, nsec = stamp(snap.time)
-    i32[stamp_at] = sec
-    i32[stamp_at + 1] = nsec
-    half = snap.yaw[rows] / 2.0
-    f64[pose_at] = snap.x[rows]
-    f64[pose_at + 1] = snap.y[rows]
-    f64[pose_at + 5] = np.sin(half)
-    f64[pose_at + 6] = np.cos(half)
+    write_poses(f64, pose_at, snap.x[rows], snap.y[rows], snap.yaw[rows])
     return f64
 
 
@@ -90,8 +107,9 @@ class OdometryCdr:
     few numpy assignments. Each robot's message is then one slice of the buffer's bytes.
     """
 
-    def __init__(self, covariance_diagonal: tuple[float, ...]) -> None:
+    def __init__(self, covariance_diagonal: tuple[float, ...], prefixed: bool = True) -> None:
         self._cov = covariance(covariance_diagonal)
+        self._prefixed = prefixed
         self._key: tuple[str, ...] = ()
         self._buf = np.zeros(0, np.uint8)
         self._spans: list[tuple[int, int]] = []
@@ -109,7 +127,8 @@ class OdometryCdr:
             pad = (4 - pos) % 8  # the payload (after the 4-byte header) starts 8-aligned
             parts.append(bytes(pad))
             pos += pad
-            frames = frames_blob(f"{ns}/odom", f"{ns}/base_footprint", 8, 8)
+            odom, base = robot_frame(ns, "odom", self._prefixed), robot_frame(ns, "base_footprint", self._prefixed)
+            frames = frames_blob(odom, base, 8, 8)
             message = b"".join((ENCAPSULATION, bytes(8), frames, bytes(56), self._cov, bytes(48), self._cov))
             spans.append((pos, pos + len(message)))
             stamps.append((pos + 4) // 4)
@@ -144,7 +163,8 @@ class LaserScanCdr:
     time_increment and scan_time 0; intensities all 0, one per range)."""
 
     def __init__(self, angle_min: float, angle_max: float, angle_increment: float,
-                 range_min: float, range_max: float, samples: int) -> None:  # fmt: skip
+                 range_min: float, range_max: float, samples: int, prefixed: bool = True) -> None:  # fmt: skip
+        self._prefixed = prefixed
         self._params = struct.pack("<7f", angle_min, angle_max, angle_increment, 0.0, 0.0, range_min, range_max)
         self._count = _U32.pack(samples)
         self._intensities = self._count + bytes(4 * samples)
@@ -154,7 +174,8 @@ class LaserScanCdr:
     def _frames_of(self, ns: str) -> bytes:
         blob = self._frames.get(ns)
         if blob is None:
-            blob = self._frames[ns] = frames_blob(f"{ns}/base_scan", None, 8, 4) + self._params + self._count
+            frame = robot_frame(ns, "base_scan", self._prefixed)
+            blob = self._frames[ns] = frames_blob(frame, None, 8, 4) + self._params + self._count
         return blob
 
     def forget(self, ns: str) -> None:
@@ -167,50 +188,6 @@ class LaserScanCdr:
             (ENCAPSULATION, _STAMP.pack(*stamp(t)), self._frames_of(ns),
              np.ascontiguousarray(ranges, dtype="<f4").tobytes(), self._intensities)
         )  # fmt: skip
-
-
-class TfCdr:
-    """tf2_msgs/msg/TFMessage with one odom -> base_footprint transform per robot.
-
-    Laid out once for a set of robots, like :class:`OdometryCdr`: the first transform starts 4
-    bytes into the payload (after the count), every later one 8-aligned (each ends with
-    doubles), and a tick writes the stamps and numbers with numpy.
-    """
-
-    def __init__(self) -> None:
-        self._key: tuple[str, ...] = ()
-        self._buf = np.zeros(0, np.uint8)
-        self._stamp_at = np.zeros(0, np.intp)
-        self._xyz_at = np.zeros(0, np.intp)
-        self._end = 0
-
-    def forget(self, ns: str) -> None:
-        self._key = ()
-
-    def _lay_out(self, names: tuple[str, ...]) -> None:
-        # 4 bytes of padding, the header, then the payload 8-aligned in the buffer
-        parts = [bytes(4), ENCAPSULATION, _U32.pack(len(names))]
-        stamps, xyz = [], []
-        pos = 4  # payload offset
-        for ns in names:
-            frames = frames_blob(f"{ns}/odom", f"{ns}/base_footprint", pos + 8, 8)
-            stamps.append((pos + 8) // 4)
-            xyz.append((pos + 8 + 8 + len(frames)) // 8)
-            parts += (bytes(8), frames, bytes(56))
-            pos += 8 + len(frames) + 56
-        raw = b"".join(parts)
-        self._end = len(raw)
-        self._buf = np.frombuffer(raw + bytes(-len(raw) % 8), dtype=np.uint8).copy()
-        self._stamp_at = np.asarray(stamps, dtype=np.intp)
-        self._xyz_at = np.asarray(xyz, dtype=np.intp)
-        self._key = names
-
-    def encode(self, snap: TickSnapshot, rows: list[int]) -> bytes:
-        names = tuple(snap.namespaces[r] for r in rows)
-        if names != self._key:
-            self._lay_out(names)
-        _write_stamps_and_poses(self._buf, self._stamp_at, self._xyz_at, snap, np.asarray(rows, dtype=np.intp))
-        return self._buf[4 : self._end].tobytes()
 
 
 def clock_cdr(t: float) -> bytes:
@@ -257,29 +234,12 @@ def _finite(v: float, w: float) -> tuple[float, float]:
     return v, w
 
 
-def transform_elements(stamp_: tuple[int, int], transforms: list[Transform], first: bool) -> bytes:
-    """geometry_msgs/msg/TransformStamped elements of a TFMessage, laid out as the first ones of
-    the message (the first starting 4 bytes in) or as later ones (8-aligned)."""
-    parts = []
-    pos = 4 if first else 0
-    for parent, child, xyz, quat in transforms:
-        blob = _STAMP.pack(*stamp_) + frames_blob(parent, child, pos + 8, 8)
-        parts.append(blob + struct.pack("<7d", *xyz, *quat))
-        pos = 0  # every element ends with doubles: the next one starts 8-aligned
-    return b"".join(parts)
-
-
-def tf_message(count: int, elements: list[bytes]) -> bytes:
-    """A TFMessage of ``count`` transforms from :func:`transform_elements` blobs (the first laid
-    out as first)."""
-    return b"".join((ENCAPSULATION, _U32.pack(count), *elements))
-
-
 class ImuCdr:
     """sensor_msgs/msg/Imu in frame ``<ns>/imu_link``, covariances as the Gazebo TurtleBot3 IMU
     (orientation's not filled, angular velocity 4e-8, linear acceleration 2.89e-4 on the diagonal)."""
 
-    def __init__(self) -> None:
+    def __init__(self, prefixed: bool = True) -> None:
+        self._prefixed = prefixed
         zero9 = bytes(72)
         self._angular_cov = np.diag([4e-8] * 3).tobytes()
         self._linear_cov = np.diag([2.89e-4] * 3).tobytes()
@@ -292,7 +252,7 @@ class ImuCdr:
     def encode(self, ns: str, t: float, yaw: float, angular_z: float, accel_x: float, accel_y: float) -> bytes:
         blob = self._frames.get(ns)
         if blob is None:
-            blob = self._frames[ns] = frames_blob(f"{ns}/imu_link", None, 8, 8)
+            blob = self._frames[ns] = frames_blob(robot_frame(ns, "imu_link", self._prefixed), None, 8, 8)
         half = yaw / 2.0
         return b"".join(
             (

@@ -13,8 +13,9 @@ a transform fleetsim does not have (a robot's ``base_link``, another robot's odo
 ``map`` is the world as long as no SLAM or localisation node publishes a map of its own; a goal
 in such a map's frame reaches the robot in world coordinates all the same.
 
-What goes back is stamped in sim time (``/clock``) in the robot's world-aligned frame: the
-``--ros-world-frame`` if there is one, else ``<ns>/odom``.
+What goes back is stamped in sim time (``/clock``) in the robot's world-aligned frame
+(tf_layout.TfLayout.pose_frame): ``map`` when the daemon localises, else the
+``--ros-world-frame`` if there is one, else ``<ns>/odom`` (``odom`` in Nav2's multi-robot layout).
 
 How a goal ends, in Nav2's terms: reached is SUCCEEDED; cancelled (on request, or by a reset of
 the world) is CANCELED; everything else is ABORTED, a goal replaced by a newer one included,

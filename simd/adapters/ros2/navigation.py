@@ -68,6 +68,7 @@ from simd.adapters.ros2.nav_messages import (
 )
 from simd.adapters.ros2.robot_ports import KeyPublisher, LatchedPublisher, Participant
 from simd.adapters.ros2.service_server import MAX_REQUEST_BYTES, Call, reply_sender
+from simd.adapters.ros2.tf_layout import TfLayout
 from simd.adapters.zenoh_entities import Interest, undeclare_all
 from simd.engine.outbox import Outbox
 from simd.engine.ports import Reply, Result
@@ -115,11 +116,11 @@ class RobotNav:
 class RosNavigation:
     """navigate_to_pose, goal_pose and plan for every robot of one daemon (module docstring)."""
 
-    def __init__(self, p: Participant, submit: Submit, outbox: Outbox, world_frame: str | None = None) -> None:
+    def __init__(self, p: Participant, submit: Submit, outbox: Outbox, layout: TfLayout | None = None) -> None:
         self.p = p
         self._submit = submit
         self.outbox = outbox
-        self.world_frame = world_frame
+        self.layout = layout or TfLayout()
         self.store = typestore(p.distro)
         self.messages = Messages(self.store)
         self.parts = action_parts(NAVIGATE_TO_POSE)
@@ -161,8 +162,8 @@ class RosNavigation:
         goal_pose = p.topic(f"/{namespace}/goal_pose", POSE_STAMPED)
         tokens.append(p.session.liveliness().declare_token(
             node.entity_token(p.next_id(), graph.Kind.SUBSCRIPTION, goal_pose, GOAL_POSE_QOS)))  # fmt: skip
-        frame = self.world_frame or f"{namespace}/odom"
-        self.robots[namespace] = RobotNav(namespace, world_frames(namespace, self.world_frame), frame,
+        frames = world_frames(namespace, self.layout.world_frame)
+        self.robots[namespace] = RobotNav(namespace, frames, self.layout.pose_frame(namespace),
                                           feedback, status, plan, tokens)  # fmt: skip
 
     def remove_robot(self, namespace: str) -> None:

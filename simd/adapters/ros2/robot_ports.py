@@ -11,6 +11,10 @@ when it is deleted.
 
 Each publisher knows (from zenoh's matching listener) whether anybody subscribes: messages
 are built only for topics somebody reads.
+
+Where the robot's transforms go and what its frames are called is the :class:`TfLayout`'s
+(tf_layout.py): ``/tf_static`` with prefixed frames by default, ``/<ns>/tf_static`` and a
+``/<ns>/tf`` of the robot's own with unprefixed frames in Nav2's multi-robot layout.
 """
 
 from __future__ import annotations
@@ -23,9 +27,10 @@ import zenoh
 import zenoh.ext
 
 from protocol import frames
-from simd.adapters.ros2 import cdr, graph
+from simd.adapters.ros2 import graph, tf_cdr
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.adapters.ros2.interfaces import Distro
+from simd.adapters.ros2.tf_layout import TfLayout
 from simd.adapters.zenoh_entities import Interest, Tally, undeclare_all
 from simd.core.models import RobotModel
 
@@ -33,6 +38,11 @@ from simd.core.models import RobotModel
 NODE_NAME = "turtlebot3"
 
 CMD_VEL_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
+TF_TYPE = "tf2_msgs/msg/TFMessage"
+#: what RViz's "2D Pose Estimate" sends (AMCL's and nav2_loopback_sim's initialpose)
+INITIAL_POSE_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
+#: advertised reliable and volatile, as RViz publishes it (rmw_zenoh has no incompatible QoS pairs)
+INITIAL_POSE_QOS = Qos(depth=1)
 
 
 @dataclass
@@ -43,12 +53,13 @@ class Participant:
     domain: int
     distro: Distro
     zid: str = ""
-    #: how many robots' odom, scan, imu and joint_states have a subscriber (all zero: a tick
-    #: builds nothing per robot)
+    #: how many robots' odom, scan, imu, joint_states and own tf have a subscriber (all zero: a
+    #: tick builds nothing per robot)
     odom_interest: Tally = field(default_factory=Tally)
     scan_interest: Tally = field(default_factory=Tally)
     imu_interest: Tally = field(default_factory=Tally)
     joints_interest: Tally = field(default_factory=Tally)
+    tf_interest: Tally = field(default_factory=Tally)
     _ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
 
     def __post_init__(self) -> None:
@@ -56,7 +67,9 @@ class Participant:
 
     @property
     def robot_interest(self) -> bool:
-        return bool(self.odom_interest or self.scan_interest or self.imu_interest or self.joints_interest)
+        return bool(
+            self.odom_interest or self.scan_interest or self.imu_interest or self.joints_interest or self.tf_interest
+        )
 
     def next_id(self) -> int:
         return next(self._ids)
@@ -178,10 +191,10 @@ def declare_node(p: Participant, node: Node, tokens: list[Any]) -> Node:
 class RobotPorts:
     """A robot's ROS entities; also the wheel angles its joint_states report."""
 
-    def __init__(self, p: Participant, namespace: str, model: RobotModel, world_frame: str | None = None) -> None:
+    def __init__(self, p: Participant, namespace: str, model: RobotModel, layout: TfLayout | None = None) -> None:
         self.namespace = namespace
         self.model = model
-        self.world_frame = world_frame
+        self.layout = layout = layout or TfLayout()
         self._tokens: list[Any] = []
         ns = f"/{namespace}"
         t = self._tokens
@@ -198,19 +211,28 @@ class RobotPorts:
             topic = p.topic(f"{ns}/cmd_vel", typename)
             token = node.entity_token(p.next_id(), Kind.SUBSCRIPTION, topic, graph.CMD_VEL_QOS)
             t.append(p.session.liveliness().declare_token(token))
+        #: the robot's own /<ns>/tf (Nav2's multi-robot layout), else None: it is on the fleet's /tf
+        self.tf: RosPublisher | None = None
+        if layout.namespaced:
+            self.tf = RosPublisher(p, node, p.topic(layout.tf_topic(namespace), TF_TYPE), graph.TF_QOS, t,
+                                   p.tf_interest)  # fmt: skip
+        if layout.localization:  # one subscriber takes every robot's (localization.py)
+            topic = p.topic(f"{ns}/initialpose", INITIAL_POSE_TYPE)
+            t.append(p.session.liveliness().declare_token(
+                node.entity_token(p.next_id(), Kind.SUBSCRIPTION, topic, INITIAL_POSE_QOS)))  # fmt: skip
         self.tf_static = LatchedPublisher(
-            p, node, p.topic("/tf_static", "tf2_msgs/msg/TFMessage"), graph.TF_STATIC_QOS, t
+            p, node, p.topic(layout.tf_static_topic(namespace), TF_TYPE), graph.TF_STATIC_QOS, t
         )
-        transforms = self.static_transforms()
-        self.tf_static.put(cdr.tf_message(len(transforms), [cdr.transform_elements((0, 0), transforms, first=True)]))
+        self.tf_static.put(tf_cdr.static_message(self.static_transforms()))
         self.wheel_angles = (0.0, 0.0)
         self.last_linear: float | None = None  # the IMU's speed a tick ago
 
     def static_transforms(self) -> list[frames.Transform]:
         """The robot's fixed frames (protocol/frames.py), as robot_state_publisher sends them."""
-        return frames.static_transforms(self.namespace, self.model.name, self.world_frame)
+        return self.layout.static(self.namespace, self.model.name)
 
     def close(self) -> None:
-        for pub in (self.odom, self.scan, self.imu, self.joint_states, self.tf_static):
-            pub.undeclare()
+        for pub in (self.odom, self.scan, self.imu, self.joint_states, self.tf, self.tf_static):
+            if pub is not None:
+                pub.undeclare()
         undeclare_all(self._tokens)
