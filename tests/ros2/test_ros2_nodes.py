@@ -115,9 +115,16 @@ def test_node_info_lists_what_an_rclcpp_node_has(ros: RosDomain) -> None:
     for suffix, typename in PARAMETER_SERVICES.items():
         assert tokens[("SS", f"{ROBOT_NODE}/{suffix}")].hash == type_hash(typename)
     assert tokens[("MP", "/rosout")].hash == type_hash("rcl_interfaces/msg/Log")
-    own = node_info(ros.tool.wait_graph(lambda g: "/rosout" in node_info(g, "/fleetsim")["publishers"]), "/fleetsim")
+
+    def daemon_node_complete(g: list[Any]) -> bool:
+        own = node_info(g, "/fleetsim")
+        return {"/rosout", "/parameter_events", "/clock", "/tf"} <= set(own["publishers"]) and {
+            "/fleetsim/list_parameters", "/spawn_entity",
+        } <= set(own["services"])  # fmt: skip
+
+    own = node_info(ros.tool.wait_graph(daemon_node_complete), "/fleetsim")  # ros2 node info /fleetsim
     assert own["services"]["/fleetsim/list_parameters"] == {LIST}
-    assert "/clock" in own["publishers"] and "/spawn_entity" in own["services"]
+    assert own["publishers"]["/rosout"] == {"rcl_interfaces/msg/Log"}
 
 
 def test_rosout_tells_spawns_and_deletes_and_a_deleted_robot_has_no_parameters(ros: RosDomain) -> None:

@@ -102,7 +102,7 @@ class Ros2Adapter:
         # what rclcpp gives every node: the daemon's own (its parameters, its /rosout), every robot's
         node_entities.declare_tokens(p, node, self._tokens, rosout=False)
         self.rosout = Rosout(p, node, self._tokens)
-        self.parameters = ParameterServer(p, self.outbox, node.fqn, lambda path: True)
+        self.own_parameters = ParameterServer(p, self.outbox, node.fqn, lambda path: True)
         self.robot_nodes = RobotNodes(p, self.outbox, self._known)
         #: Nav2's navigate_to_pose, goal_pose and plan of each robot (not with --no-nav); a robot's
         #: goals go to this daemon's own engine, which navigates it, shared fleet or not
@@ -164,7 +164,7 @@ class Ros2Adapter:
             self.speaker.close()
         self.outbox.put(self._fall_silent)  # no service call taken once the outbox has stopped
         self.commands.close()
-        self.parameters.close()
+        self.own_parameters.close()
         self.robot_nodes.close_inputs()
         if self.navigation is not None:
             self.navigation.close_inputs()

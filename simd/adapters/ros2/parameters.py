@@ -152,7 +152,8 @@ class NodeParameters:
                 f"setting it to {{{given}}} is not allowed.",
             )
         if value != declared.value:
-            return SetResult(False, f"parameter '{name}' cannot be set to {value!r}: {declared.fixed}")
+            shown = str(value).lower() if isinstance(value, bool) else repr(value)
+            return SetResult(False, f"parameter '{name}' cannot be set to {shown}: {declared.fixed}")
         return SetResult(True)
 
     def set_atomically(self, parameters: Sequence[tuple[str, int, Any]]) -> SetResult:
