@@ -528,11 +528,10 @@ class StandIn:
 
     # parameters, as ros2param's api calls them
     def list_parameters(self, node: str, prefixes: tuple[str, ...] = (), depth: int = 0) -> Any:
-        """``ros2 param list <node>``: the node's ``list_parameters`` must be in the graph (ros2
-        param lists only nodes that have it), then one call (depth 0: DEPTH_RECURSIVE)."""
+        """``ros2 param list <node>``'s call (depth 0: DEPTH_RECURSIVE). ros2 param lists only
+        nodes whose ``list_parameters`` is in the graph: wait for it first (``service_available``;
+        one graph query may miss a token another one showed)."""
         service = (f"{node}/list_parameters", "rcl_interfaces/srv/ListParameters")
-        if not self.service_available(*service):
-            raise LookupError(f"{node} has no list_parameters")
         request = self.msg("rcl_interfaces/srv/ListParameters_Request", prefixes=list(prefixes), depth=depth)
         return self.call(*service, request).result
 
