@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import pytest
@@ -75,7 +76,7 @@ def test_ros2_param_on_the_robots_and_the_daemons_node(ros: RosDomain) -> None:
     tool = ros.tool
     robot(ros)
     for node in (ROBOT_NODE, "/fleetsim"):
-        assert wait_until(lambda node=node: tool.service_available(f"{node}/list_parameters", LIST), 10.0)
+        assert wait_until(partial(tool.service_available, f"{node}/list_parameters", LIST), 10.0)
         listed = tool.list_parameters(node)  # ros2 param list
         assert (list(listed.names), list(listed.prefixes)) == (["use_sim_time"], [])
         (value,) = tool.parameter_call(node, "get_parameters", names=["use_sim_time"]).values  # ros2 param get
