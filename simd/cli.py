@@ -36,6 +36,10 @@ TRANSPORT_DEFAULTS = {
     "transport/link/tx/queue/size/data_low": "16",  # scans (see net.Bridge.add_robot)
 }
 
+#: the ROS 2 distributions --ros-distro knows (simd.adapters.ros2.interfaces.DISTROS; named here so
+#: that parsing the flags does not load the ROS adapter and rosbags)
+ROS_DISTROS = ("humble", "jazzy", "kilted", "lyrical", "rolling")
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
@@ -150,10 +154,19 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
     )
     g.add_argument(
         "--ros-distro",
-        choices=("jazzy", "humble"),
+        choices=ROS_DISTROS,
         default=None,
-        help="the ROS tools' distribution: jazzy (and later) key topics by type hash, humble does not "
-        "(default: $ROS_DISTRO if it is one of these, else jazzy)",
+        help="the ROS tools' distribution: humble keys topics without type hashes, the others with them; "
+        "lyrical and rolling get simulation_interfaces 2.x (default: $ROS_DISTRO if it is one of these, "
+        "else jazzy)",
+    )
+    g.add_argument(
+        "--ros-cmd-vel",
+        choices=("twist", "stamped", "both"),
+        default=None,
+        help="the type each robot's cmd_vel subscription advertises (both are taken either way): Twist, "
+        "TwistStamped, or both, which tools that infer a topic's type refuse (default: twist up to jazzy, "
+        "stamped from kilted, as Nav2 defaults)",
     )
     g.add_argument(
         "--ros-router",
@@ -213,7 +226,7 @@ def ros_settings(args: argparse.Namespace, env: Mapping[str, str]) -> tuple[int,
         raise ValueError(
             "--ros-serve-router makes simd the ROS router, which is no client: leave out --ros-mode client"
         )
-    distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ("jazzy", "humble") else "jazzy")
+    distro: str = args.ros_distro or (env["ROS_DISTRO"] if env.get("ROS_DISTRO") in ROS_DISTROS else "jazzy")
     return domain, distro
 
 
@@ -399,7 +412,7 @@ def main(argv: list[str] | None = None) -> int:
             from simd.adapters.ros2.shared_fleet import SharedFleet
 
             options = RosOptions(
-                ros_domain, ros_distro, args.ros_world_frame,  # type: ignore[arg-type]
+                ros_domain, ros_distro, args.ros_world_frame, args.ros_cmd_vel,  # type: ignore[arg-type]
                 namespaced_tf=args.ros_tf == "namespaced", localization=args.ros_localization,
             )  # fmt: skip
             shared = SharedFleet(session, keys, args.id) if args.join else None

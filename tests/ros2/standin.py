@@ -14,7 +14,12 @@ the other. It behaves as a ROS process does:
   reply by its sequence number;
 - a late ``/tf_static`` subscriber that asks the publishers' caches for history, as a
   transient-local ROS subscription does;
-- the graph read from liveliness tokens, parsed as rmw_zenoh's GraphCache parses them.
+- the graph read from liveliness tokens, parsed as rmw_zenoh's GraphCache parses them, and
+  what ``ros2 node info``, ``ros2 topic list -t`` and ``ros2 param`` make of it.
+
+Types are per distro where the distros differ: simulation_interfaces is 1.x on Humble, Jazzy
+and Kilted and 2.x (branch main, 2.1.0) on Lyrical and Rolling, and Nav2's NavigateToPose
+feedback has two more fields on Lyrical and Rolling.
 """
 
 from __future__ import annotations
@@ -84,6 +89,13 @@ _SI_MSGS = {
     "Spawnable": "string uri; string description; simulation_interfaces::msg::Bounds spawn_bounds;",
 }
 _R = "simulation_interfaces::msg::Result result;"
+#: ... and 2.x (branch main, 2.1.0): what it changed
+_SI2_MSGS = {
+    **_SI_MSGS,
+    "Resource": "string uri; string resource_string;",
+    "Spawnable": "simulation_interfaces::msg::Resource entity_resource; string description; "
+    "simulation_interfaces::msg::Bounds spawn_bounds;",
+}
 _SI_SRVS = {
     "SpawnEntity": ("string name; boolean allow_renaming; string uri; string resource_string; "
                     "string entity_namespace; geometry_msgs::msg::PoseStamped initial_pose;",
@@ -101,24 +113,49 @@ _SI_SRVS = {
                              "simulation_interfaces::msg::SimulatorFeatures features;"),
     "GetSpawnables": ("sequence<string> sources;", f"{_R} sequence<simulation_interfaces::msg::Spawnable> spawnables;"),
 }  # fmt: skip
+_SI2_SRVS = {
+    **_SI_SRVS,
+    "SpawnEntity": ("string name; boolean allow_renaming; simulation_interfaces::msg::Resource entity_resource; "
+                    "string entity_namespace; geometry_msgs::msg::PoseStamped initial_pose;",
+                    f"{_R} string entity_name;"),
+    "SetEntityState": ("string entity; simulation_interfaces::msg::EntityState state; boolean set_pose; "
+                       "boolean set_twist; boolean set_acceleration;", _R),
+}  # fmt: skip
 
 
-def _simulation_idl() -> str:
-    msgs = "".join(f"struct {name} {{ {body} }};\n" for name, body in _SI_MSGS.items())
-    srvs = []
-    for name, (req, resp) in _SI_SRVS.items():
-        q = f"simulation_interfaces::srv::{name}"
-        srvs.append(
+def _services_idl(pkg: str, services: dict[str, tuple[str, str]]) -> str:
+    """Services as rosidl expands them: request, response, the event and the service type."""
+    out = []
+    for name, (req, resp) in services.items():
+        q = f"{pkg}::srv::{name}"
+        out.append(
             f"struct {name}_Request {{ {req} }}; struct {name}_Response {{ {resp} }};\n"
             f"struct {name}_Event {{ service_msgs::msg::ServiceEventInfo info; sequence<{q}_Request, 1> request; "
             f"sequence<{q}_Response, 1> response; }};\n"
             f"struct {name} {{ {q}_Request request_message; {q}_Response response_message; "
             f"{q}_Event event_message; }};\n"
         )
-    return (
-        f"module simulation_interfaces {{ module msg {{\n{msgs}}}; }};\n"
-        f"module simulation_interfaces {{ module srv {{\n{''.join(srvs)}}}; }};\n"
+    return f"module {pkg} {{ module srv {{\n{''.join(out)}}}; }};\n"
+
+
+def _simulation_idl(version: int) -> str:
+    messages, services = (_SI_MSGS, _SI_SRVS) if version == 1 else (_SI2_MSGS, _SI2_SRVS)
+    msgs = "".join(f"struct {name} {{ {body} }};\n" for name, body in messages.items())
+    return f"module simulation_interfaces {{ module msg {{\n{msgs}}}; }};\n" + _services_idl(
+        "simulation_interfaces", services
     )
+
+
+#: rcl_interfaces' parameter services (ros2/rcl_interfaces srv/*.srv); their messages are in rosbags' stores
+_RCL = "rcl_interfaces::msg::"
+_PARAMETER_IDL = _services_idl("rcl_interfaces", {
+    "DescribeParameters": ("sequence<string> names;", f"sequence<{_RCL}ParameterDescriptor> descriptors;"),
+    "GetParameterTypes": ("sequence<string> names;", "sequence<uint8> types;"),
+    "GetParameters": ("sequence<string> names;", f"sequence<{_RCL}ParameterValue> values;"),
+    "ListParameters": ("sequence<string> prefixes; uint64 depth;", f"{_RCL}ListParametersResult result;"),
+    "SetParameters": (f"sequence<{_RCL}Parameter> parameters;", f"sequence<{_RCL}SetParametersResult> results;"),
+    "SetParametersAtomically": (f"sequence<{_RCL}Parameter> parameters;", f"{_RCL}SetParametersResult result;"),
+})  # fmt: skip
 
 
 def _action_idl(pkg: str, name: str, goal: str, result: str, feedback: str) -> str:
@@ -164,21 +201,35 @@ module action_msgs { module srv {
 }; };
 """
 
-#: nav2_msgs/action/NavigateToPose, Jazzy (ros-navigation/navigation2, branch jazzy), and
-#: test_msgs/action/Fibonacci, whose hashes rosidl publishes (to check the expansion itself)
-_ACTION_IDL = _action_idl(
-    "nav2_msgs", "NavigateToPose",
-    "geometry_msgs::msg::PoseStamped pose; string behavior_tree;",
-    "uint16 error_code; string error_msg;",
+#: nav2_msgs/action/NavigateToPose, Jazzy (ros-navigation/navigation2, branch jazzy; its feedback
+#: gained the two tracking errors on branches lyrical and main), and test_msgs/action/Fibonacci,
+#: whose hashes rosidl publishes (to check the expansion itself)
+_NAV_FEEDBACK = (
     "geometry_msgs::msg::PoseStamped current_pose; builtin_interfaces::msg::Duration navigation_time; "
     "builtin_interfaces::msg::Duration estimated_time_remaining; int16 number_of_recoveries; "
-    "float distance_remaining;",
-) + _action_idl("test_msgs", "Fibonacci", "int32 order;", "sequence<int32> sequence;",
-                  "sequence<int32> sequence;")  # fmt: skip
+    "float distance_remaining;"
+)
+_FIBONACCI_IDL = _action_idl("test_msgs", "Fibonacci", "int32 order;", "sequence<int32> sequence;",
+                             "sequence<int32> sequence;")  # fmt: skip
 
 
-@functools.lru_cache(maxsize=1)
-def types() -> Typestore:
+def _navigate_idl(feedback: str) -> str:
+    return _action_idl("nav2_msgs", "NavigateToPose", "geometry_msgs::msg::PoseStamped pose; string behavior_tree;",
+                       "uint16 error_code; string error_msg;", feedback)  # fmt: skip
+
+
+#: which simulation_interfaces (and Nav2 feedback) each distro's tools were built with
+INTERFACES_VERSION = {"humble": 1, "jazzy": 1, "kilted": 1, "lyrical": 2, "rolling": 2}
+
+
+def types(distro: str = "jazzy") -> Typestore:
+    """The types a ROS tool of ``distro`` knows (Humble's keys carry no hash, and its other
+    differences are no concern of these tests: it uses the 1.x store)."""
+    return _types(INTERFACES_VERSION[distro])
+
+
+@functools.lru_cache(maxsize=2)
+def _types(version: int) -> Typestore:
     """Jazzy's messages, rosidl's ServiceEventInfo (uint8 client_gid) and the services in IDL."""
     jazzy = get_typestore(Stores.ROS2_JAZZY)
     store = get_typestore(Stores.EMPTY)
@@ -191,13 +242,15 @@ def types() -> Typestore:
     )
     store.register(get_types_from_idl(_IDL))
     store.register(get_types_from_idl(_CANCEL_IDL))
-    store.register(get_types_from_idl(_ACTION_IDL))
-    store.register(get_types_from_idl(_simulation_idl()))
+    tracking = " float position_tracking_error; float heading_tracking_error;" if version == 2 else ""
+    store.register(get_types_from_idl(_navigate_idl(_NAV_FEEDBACK + tracking) + _FIBONACCI_IDL))
+    store.register(get_types_from_idl(_simulation_idl(version)))
+    store.register(get_types_from_idl(_PARAMETER_IDL))
     return store
 
 
 def type_hash(typename: str, distro: str = "jazzy") -> str:
-    return "TypeHashNotSupported" if distro == "humble" else types().hash_rihs01(typename)
+    return "TypeHashNotSupported" if distro == "humble" else types(distro).hash_rihs01(typename)
 
 
 def dds_name(typename: str) -> str:
@@ -209,16 +262,16 @@ def key(domain: int, name: str, typename: str, distro: str = "jazzy") -> str:
     return f"{domain}/{name.strip('/')}/{dds_name(typename)}/{type_hash(typename, distro)}"
 
 
-def msg(typename: str, **fields: Any) -> Any:
-    return types().types[typename](**fields)
+def msg(typename: str, distro: str = "jazzy", **fields: Any) -> Any:
+    return types(distro).types[typename](**fields)
 
 
-def serialize(message: Any, typename: str) -> bytes:
-    return bytes(types().serialize_cdr(message, typename))
+def serialize(message: Any, typename: str, distro: str = "jazzy") -> bytes:
+    return bytes(types(distro).serialize_cdr(message, typename))
 
 
-def deserialize(payload: bytes, typename: str) -> Any:
-    return types().deserialize_cdr(payload, typename)
+def deserialize(payload: bytes, typename: str, distro: str = "jazzy") -> Any:
+    return types(distro).deserialize_cdr(payload, typename)
 
 
 def attachment(seq: int, gid: bytes) -> bytes:
@@ -282,6 +335,32 @@ def parse_qos(chunk: str) -> dict[str, int]:
     return {"reliability": int(rel or 1), "durability": int(dur or 2), "depth": int(depth or 10)}
 
 
+def ros_type(dds_type: str) -> str:
+    """``pkg::msg::dds_::Name_`` -> ``pkg/msg/Name``."""
+    pkg, kind, _, name = dds_type.split("::")
+    return f"{pkg}/{kind}/{name[:-1]}"
+
+
+def topic_types(graph: list[Entity]) -> dict[str, set[str]]:
+    """What ``ros2 topic list -t`` shows: every topic with the types its publishers and
+    subscriptions advertise (a tool that infers a topic's type needs exactly one)."""
+    out: dict[str, set[str]] = {}
+    for e in graph:
+        if e.kind in ("MP", "MS"):
+            out.setdefault(e.topic, set()).add(ros_type(e.type))
+    return out
+
+
+def node_info(graph: list[Entity], node: str) -> dict[str, dict[str, set[str]]]:
+    """What ``ros2 node info <node>`` lists, by kind: names with their types."""
+    kinds = {"MP": "publishers", "MS": "subscribers", "SS": "services", "SC": "clients"}
+    out: dict[str, dict[str, set[str]]] = {k: {} for k in kinds.values()}
+    for e in graph:
+        if e.kind in kinds and e.node_fqn == node:
+            out[kinds[e.kind]].setdefault(e.topic, set()).add(ros_type(e.type))
+    return out
+
+
 # -- the tool ---------------------------------------------------------------------------------
 
 
@@ -313,6 +392,10 @@ class StandIn:
     def key(self, name: str, typename: str) -> str:
         return key(self.domain, name, typename, self.distro)
 
+    def msg(self, typename: str, **fields: Any) -> Any:
+        """A message of ``typename`` as this tool's distro defines it."""
+        return msg(typename, self.distro, **fields)
+
     # graph
     def graph(self) -> list[Entity]:
         out = []
@@ -343,7 +426,7 @@ class StandIn:
                 return
             seq = struct.unpack_from("<q", att)[0]
             payload = sample.payload.to_bytes()
-            out.put((deserialize(payload, typename), seq, payload, bytes(att[17:])))
+            out.put((deserialize(payload, typename, self.distro), seq, payload, bytes(att[17:])))
 
         self._entities.append(self.session.declare_subscriber(self.key(name, typename), on_sample))
         return out
@@ -357,7 +440,7 @@ class StandIn:
             if len(att) != 33:
                 self.rejected.append(f"{sample.key_expr}: attachment of {len(att)} bytes")
                 return
-            out.put(deserialize(sample.payload.to_bytes(), typename))
+            out.put(deserialize(sample.payload.to_bytes(), typename, self.distro))
 
         sub = zenoh.ext.declare_advanced_subscriber(
             self.session,
@@ -385,7 +468,7 @@ class StandIn:
 
         def put(message: Any, with_attachment: bool = True) -> None:
             seq[0] += 1
-            payload = serialize(message, typename)
+            payload = serialize(message, typename, self.distro)
             if with_attachment:
                 pub.put(payload, attachment=attachment(seq[0], gid))
             else:
@@ -422,7 +505,7 @@ class StandIn:
         leaves at once; the replies are read as the iterator is."""
         self._seq += 1
         seq = self._seq
-        payload = serialize(request, f"{srv_type}_Request")
+        payload = serialize(request, f"{srv_type}_Request", self.distro)
         replies = self.session.get(
             self.key(name, srv_type),
             payload=payload,
@@ -445,11 +528,47 @@ class StandIn:
             if rseq != seq or att[17:] != self.gid:
                 self.rejected.append(f"reply for sequence {rseq}, not {seq}")
                 continue
-            yield deserialize(reply.ok.payload.to_bytes(), f"{srv_type}_Response")
+            yield deserialize(reply.ok.payload.to_bytes(), f"{srv_type}_Response", self.distro)
 
     def service_available(self, name: str, srv_type: str) -> bool:
         """As GraphCache::service_server_is_available: an SS token of that name and type."""
         return any(e.kind == "SS" and e.topic == name and e.type == dds_name(srv_type) for e in self.graph())
+
+    # parameters, as ros2param's api calls them
+    def list_parameters(self, node: str, prefixes: tuple[str, ...] = (), depth: int = 0) -> Any:
+        """``ros2 param list <node>``'s call (depth 0: DEPTH_RECURSIVE). ros2 param lists only
+        nodes whose ``list_parameters`` is in the graph: wait for it first (``service_available``;
+        one graph query may miss a token another one showed)."""
+        service = (f"{node}/list_parameters", "rcl_interfaces/srv/ListParameters")
+        request = self.msg("rcl_interfaces/srv/ListParameters_Request", prefixes=list(prefixes), depth=depth)
+        return self.call(*service, request).result
+
+    def parameter_call(self, node: str, service: str, **fields: Any) -> Any:
+        """One of a node's parameter services (``get_parameters``, ``describe_parameters``, ...)."""
+        typename = "rcl_interfaces/srv/" + "".join(w.capitalize() for w in service.split("_"))
+        return self.call(f"{node}/{service}", typename, self.msg(f"{typename}_Request", **fields))
+
+    def set_parameter(self, node: str, name: str, value: Any, atomically: bool = False) -> Any:
+        """``ros2 param set``: the value's ParameterValue as ros2param builds it from Python."""
+        kind, field = {bool: (1, "bool_value"), int: (2, "integer_value"), float: (3, "double_value"),
+                       str: (4, "string_value")}[type(value)]  # fmt: skip
+        v = _parameter_value(self, kind, field, value)
+        parameter = self.msg("rcl_interfaces/msg/Parameter", name=name, value=v)
+        service = "set_parameters_atomically" if atomically else "set_parameters"
+        return self.parameter_call(node, service, parameters=[parameter])
+
+
+def _parameter_value(tool: StandIn, kind: int, field: str, value: Any) -> Any:
+    import numpy as np
+
+    fields: dict[str, Any] = {
+        "type": kind, "bool_value": False, "integer_value": 0, "double_value": 0.0, "string_value": "",
+        "byte_array_value": np.zeros(0, np.uint8), "bool_array_value": np.zeros(0, np.bool_),
+        "integer_array_value": np.zeros(0, np.int64), "double_array_value": np.zeros(0, np.float64),
+        "string_array_value": [],
+    }  # fmt: skip
+    fields[field] = value
+    return tool.msg("rcl_interfaces/msg/ParameterValue", **fields)
 
 
 # -- actions (rcl_action over rmw_zenoh: three services and two topics under <action>/_action/) --------

@@ -119,8 +119,9 @@ def test_delete_entity(ros: RosDomain) -> None:
 def test_graph_names_nodes_topics_and_services_as_gazebo(ros: RosDomain) -> None:
     tool = ros.tool
     assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
-    # 7 of the Gazebo robot, and 7 of Nav2's navigate_to_pose, goal_pose and plan (test_ros2_navigation.py)
-    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind != "NN" for e in g) == 14)
+    # 6 of the Gazebo robot, 7 of Nav2's navigate_to_pose, goal_pose and plan (test_ros2_navigation.py),
+    # and 8 of rclcpp's node (parameter services, /rosout, /parameter_events: test_parameters_and_rosout)
+    g = tool.wait_graph(lambda g: sum(e.namespace == "/TB3_1" and e.kind != "NN" for e in g) == 21)
     nodes = {e.node_fqn for e in g if e.kind == "NN"}
     assert nodes == {"/fleetsim", "/TB3_1/turtlebot3"}
     assert {e.node_fqn for e in g if e.namespace == "/TB3_1"} == {"/TB3_1/turtlebot3"}
@@ -141,7 +142,7 @@ def test_graph_names_nodes_topics_and_services_as_gazebo(ros: RosDomain) -> None
         "reliability": 1, "durability": 1, "depth": 1,
     }  # fmt: skip
     subs = {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"}
-    assert subs == {dds_name("geometry_msgs/msg/Twist"), dds_name("geometry_msgs/msg/TwistStamped")}
+    assert subs == {dds_name("geometry_msgs/msg/Twist")}  # Jazzy's tools' default: one type
     services = {(e.topic, e.type, e.hash) for e in g if e.kind == "SS"}
     for name, typename in (SPAWN, DELETE):
         assert (name, dds_name(typename), type_hash(typename)) in services
@@ -339,6 +340,7 @@ def _reaches(frame: str, root: str, parents: dict[str, str]) -> bool:
         ([], {"ROS_DOMAIN_ID": "abc"}, "ROS_DOMAIN_ID must be a whole number"),
         (["--ros-world-frame", "/world"], {}, "--ros-world-frame must be a tf frame name"),
         (["--ros-distro", "iron"], {}, "invalid choice"),
+        (["--ros-cmd-vel", "twisted"], {}, "invalid choice"),
         (["--ros-serve-router", "--ros-mode", "client"], {}, "leave out --ros-mode client"),
         (["--ros-localization", "--ros-world-frame", "world"], {}, "a frame has one parent"),
         (["--ros-tf", "prefixed"], {}, "invalid choice"),

@@ -229,9 +229,10 @@ def test_the_nav2_files_name_topics_and_frames_the_daemon_has(ros_factory: Calla
     }
     g = tool.wait_graph(lambda g: set(wanted.items()) <= {(e.topic, e.type) for e in g if e.kind == "MP"})
     assert set(wanted.items()) <= {(e.topic, e.type) for e in g if e.kind == "MP"}
-    # the controller's cmd_vel, relative to its namespace, is taken in both types
-    assert {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"} >= {
-        "geometry_msgs::msg::dds_::Twist_", "geometry_msgs::msg::dds_::TwistStamped_"}  # fmt: skip
+    # the controller's cmd_vel, relative to its namespace, advertised as Jazzy's Nav2 sends it
+    # (Twist: enable_stamped_cmd_vel is false there; both types drive)
+    assert {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"} == {
+        "geometry_msgs::msg::dds_::Twist_"}  # fmt: skip
     tf_topic = "/TB3_1/tf" if namespaced else "/tf"
     tree = transforms(step_until(c, tool.subscribe(tf_topic, TF))[0])
     children = {child: parent for parent, child in tree}

@@ -289,3 +289,21 @@ def test_two_robots_two_actions(ros: RosDomain) -> None:
     done_b = second.get_result(b)
     step_until(c, result_of(done_b))
     assert done_b.get_nowait().status == SUCCEEDED
+
+
+def test_rolling_feedback_carries_the_tracking_errors(ros_factory: Callable[..., RosDomain]) -> None:
+    """Lyrical's and Rolling's NavigateToPose feedback has two more fields (nav2_msgs, branches
+    lyrical and main): a Rolling client decodes it, the goal and result as on Jazzy."""
+    ros = ros_factory("--lockstep", distro="rolling")
+    c, nav = robot_ready(ros)
+    feedback = nav.feedback()
+    goal_id, accepted = nav.send_goal(goal(*GOAL))
+    assert accepted.accepted
+    result = nav.get_result(goal_id)
+    step_until(c, result_of(result))
+    assert result.get_nowait().status == SUCCEEDED
+    fb = wait_for(feedback)[0]
+    assert bytes(fb.goal_id.uuid) == goal_id
+    assert (fb.feedback.position_tracking_error, fb.feedback.heading_tracking_error) == (0.0, 0.0)
+    assert fb.feedback.current_pose.header.frame_id == "TB3_1/odom"
+    assert ros.tool.rejected == []

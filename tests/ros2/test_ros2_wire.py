@@ -37,7 +37,26 @@ PINNED = {
     "geometry_msgs/msg/TwistStamped": "5f0fcd4f81d5d06ad9b4c4c63e3ea51b82d6ae4d0558f1d475229b1121db6f64",
     "gazebo_msgs/srv/SpawnEntity": "a01b6c5a00d47ced8923b43e9e24764fcaa176d2eac6d88163cdb50a02f6cfb5",
     "gazebo_msgs/srv/DeleteEntity": "81b2eed68ee3a93de5a70a0915b57c51dbed9518da77ca5f0abc47222f1f44a2",
+    # what rosidl ships in rcl_interfaces' share/rcl_interfaces/{msg,srv}/*.json (the PyPI wheel
+    # ros-rcl-interfaces 2.3.0, Kilted): the parameter services, /rosout's and /parameter_events' types
+    "rcl_interfaces/srv/DescribeParameters": "845b484d71eb0673dae682f2e3ba3c4851a65a3dcfb97bddd82c5b57e91e4cff",
+    "rcl_interfaces/srv/GetParameterTypes": "da199c878688b3e530bdfe3ca8f74cb9fa0c303101e980a9e8f260e25e1c80ca",
+    "rcl_interfaces/srv/GetParameters": "bf9803d5c74cf989a5de3e0c2e99444599a627c7ff75f97b8c05b01003675cbc",
+    "rcl_interfaces/srv/ListParameters": "3e6062bfbb27bfb8730d4cef2558221f51a11646d78e7bb30a1e83afac3aad9d",
+    "rcl_interfaces/srv/SetParameters": "56eed9a67e169f9cb6c1f987bc88f868c14a8fc9f743a263bc734c154015d7e0",
+    "rcl_interfaces/srv/SetParametersAtomically": "0e192ef259c07fc3c07a13191d27002222e65e00ccec653ca05e856f79285fcd",
+    "rcl_interfaces/msg/Log": "e28ce254ca8abc06abf92773b74602cdbf116ed34fbaf294fb9f81da9f318eac",
+    "rcl_interfaces/msg/ParameterEvent": "043e627780fcad87a22d225bc2a037361dba713fca6a6b9f4b869a5aa0393204",
 }
+#: simulation_interfaces' changed services: 1.x (computed, docs' table) and 2.x (computed; the
+#: wire audit's ends of the hashes of branch main)
+SIMULATION_1 = {
+    "SpawnEntity": "d4c086345d4194a5fc4c9ae45095736ca4062b5cdac4d06a42dec93d683e03cf",
+    "SetEntityState": "ca210e7d2b66629ae133c8e1edf5246e618106d75c78ed0556c0e7a33c59ee5e",
+    "GetSpawnables": "3bc0266bf8236058ff589c44512e013afe4f295427c39d44cff363d1c956bf36",
+}
+SIMULATION_2_ENDS = {"SpawnEntity": ("66860313", "a7"), "SetEntityState": ("fba636c9", "ac"),
+                     "GetSpawnables": ("3e25fd82", "2a")}  # fmt: skip
 JAZZY = get_typestore(Stores.ROS2_JAZZY)
 
 
@@ -48,6 +67,26 @@ JAZZY = get_typestore(Stores.ROS2_JAZZY)
 def test_type_hashes_agree_with_the_stand_in(typename: str) -> None:
     assert interfaces.type_hash(typename, "jazzy") == standin.type_hash(typename)
     assert interfaces.type_hash(typename, "humble") == "TypeHashNotSupported"
+
+
+@pytest.mark.parametrize("distro", ["jazzy", "kilted", "lyrical", "rolling"])
+def test_each_distro_gets_its_simulation_interfaces_and_nav2(distro: str) -> None:
+    """1.x up to Kilted, 2.x from Lyrical: the hashes of the three services that changed, and of
+    every other served type, equal the stand-in's (its own IDL of that distro)."""
+    two = distro in ("lyrical", "rolling")
+    for srv, digest in SIMULATION_1.items():
+        ours = interfaces.type_hash(f"simulation_interfaces/srv/{srv}", distro)
+        if two:
+            head, tail = SIMULATION_2_ENDS[srv]
+            assert ours.startswith(f"RIHS01_{head}") and ours.endswith(tail), ours
+        else:
+            assert ours == f"RIHS01_{digest}"
+    served = [*interfaces.SIMULATION_SERVICES, *interfaces.PARAMETER_SERVICES, "rcl_interfaces/msg/Log"]
+    served += [f"{interfaces.NAVIGATE_TO_POSE}_{p}" for p in ("SendGoal", "GetResult", "FeedbackMessage")]
+    for typename in served:
+        assert interfaces.type_hash(typename, distro) == standin.type_hash(typename, distro), typename
+    feedback = f"{interfaces.NAVIGATE_TO_POSE}_FeedbackMessage"
+    assert (interfaces.type_hash(feedback, distro) == interfaces.type_hash(feedback, "jazzy")) is not two
 
 
 @pytest.mark.parametrize(("typename", "digest"), PINNED.items())
@@ -105,6 +144,7 @@ def test_tokens_parse_as_the_graph_cache_reads_them() -> None:
     assert standin.parse_token(root.token()).namespace == "/"
     assert Qos(depth=1, transient_local=True).chunk() == "1:1:1,1:,:,:,,"  # the reference's example
     assert Qos(depth=10).chunk() == "1:2:1,10:,:,:,,"
+    assert graph.ROSOUT_QOS.chunk() == "1:1:1,1000:,:10,0:,,"  # rcl's rosout: lifespan 10 s, 0 ns
 
 
 def test_attachment_is_rmw_zenohs_33_bytes() -> None:
@@ -403,3 +443,10 @@ def test_the_map_message_is_the_world_drawn_as_rosbags_reads_it() -> None:
     assert (m.info.origin.position.x, m.info.origin.position.y, m.info.origin.orientation.w) == (-3.5, -3.6, 1.0)
     cells = np.asarray(m.data).reshape(grid.height, grid.width)
     np.testing.assert_array_equal(cells, np.where(occupied_cells(world, grid), 100, 0))
+
+
+def test_the_cli_knows_the_distros_the_adapter_serves() -> None:
+    from simd.cli import ROS_DISTROS
+
+    assert ROS_DISTROS == interfaces.DISTROS
+    assert set(interfaces.CMD_VEL_DEFAULT) == set(interfaces.SIMULATION_INTERFACES) == set(interfaces.DISTROS)

@@ -1,4 +1,5 @@
-"""The standard simulator services (simulation_interfaces 1.5) under /fleetsim/, called by the stand-in."""
+"""The standard simulator services (simulation_interfaces 1.x, and 2.x on Rolling) under /fleetsim/,
+called by the stand-in."""
 
 from __future__ import annotations
 
@@ -7,8 +8,9 @@ from typing import Any
 
 import pytest
 
+from clients import wait_until
 from tests.ros2.conftest import DATA, RosDomain, pose
-from tests.ros2.standin import msg
+from tests.ros2.standin import StandIn, msg
 
 SI = "simulation_interfaces"
 OK, FEATURE_UNSUPPORTED, NOT_FOUND, OPERATION_FAILED = 1, 0, 2, 4
@@ -152,3 +154,71 @@ def test_lockstep_cannot_be_played(ros_factory: Any) -> None:
     assert r.result == 102 and "lockstep" in r.error_message  # STATE_TRANSITION_ERROR
     assert call(ros, "StepSimulation", steps=3000).result.result == OK  # 100 s of sim time, in slices
     assert ros.daemon.client().clock().tick == 3000
+
+
+# -- simulation_interfaces 2.x (Lyrical, Rolling) -------------------------------------------------
+
+
+def _call2(ros: RosDomain, srv: str, **fields: Any) -> Any:
+    """A call as a Rolling tool makes it: its own (2.x) types."""
+    snake = "".join(f"_{c.lower()}" if c.isupper() else c for c in srv).lstrip("_")
+    typename = f"{SI}/srv/{srv}"
+    return ros.tool.call(f"/fleetsim/{snake}", typename, ros.tool.msg(f"{typename}_Request", **fields))
+
+
+def _spawn2(ros: RosDomain, name: str, x: float, y: float, *, uri: str = "", resource: str = "") -> Any:
+    t = ros.tool
+    header = t.msg("std_msgs/msg/Header", stamp=t.msg("builtin_interfaces/msg/Time", sec=0, nanosec=0), frame_id="")
+    pose = t.msg("geometry_msgs/msg/Pose", position=t.msg("geometry_msgs/msg/Point", x=x, y=y, z=0.0),
+                 orientation=t.msg("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0))  # fmt: skip
+    return _call2(
+        ros, "SpawnEntity", name=name, allow_renaming=False,
+        entity_resource=t.msg(f"{SI}/msg/Resource", uri=uri, resource_string=resource), entity_namespace="",
+        initial_pose=t.msg("geometry_msgs/msg/PoseStamped", header=header, pose=pose),
+    )  # fmt: skip
+
+
+def test_rolling_gets_simulation_interfaces_2(ros_factory: Any) -> None:
+    """A Rolling client sends 2.x requests (a Resource, SetEntityState's flags) and reads 2.x
+    answers; a Jazzy client in the same domain finds the services by name and type, and its
+    1.x call goes to a key nobody serves (the hang the daemon avoids by serving each distro
+    its own version)."""
+    ros = ros_factory(distro="rolling")
+    sdf = (DATA / "turtlebot3_burger.sdf").read_text()
+    r = _spawn2(ros, "tb3_0", -2.0, -0.5, resource=sdf)
+    assert (r.result.result, r.entity_name) == (OK, "tb3_0")
+    r = _spawn2(ros, "tb3_1", 0.5, -2.0, uri="model://turtlebot3_waffle")
+    assert (r.result.result, r.entity_name) == (OK, "tb3_1")
+    assert _spawn2(ros, "tb3_2", 2.0, 0.5).result.result == 104  # NO_RESOURCE
+    models = {r.name: r.model for r in ros.daemon.client().robots()}
+    assert models == {"tb3_0": "burger", "tb3_1": "waffle"}
+    spawnables = _call2(ros, "GetSpawnables", sources=[])
+    assert [s.entity_resource.uri for s in spawnables.spawnables] == [
+        f"model://turtlebot3_{m}" for m in ("burger", "waffle", "waffle_pi")
+    ]
+    t = ros.tool
+    v3 = {"x": 0.0, "y": 0.0, "z": 0.0}
+    state = t.msg(
+        f"{SI}/msg/EntityState",
+        header=t.msg("std_msgs/msg/Header", stamp=t.msg("builtin_interfaces/msg/Time", sec=0, nanosec=0), frame_id=""),
+        pose=t.msg("geometry_msgs/msg/Pose", position=t.msg("geometry_msgs/msg/Point", **v3),
+                   orientation=t.msg("geometry_msgs/msg/Quaternion", x=0.0, y=0.0, z=0.0, w=1.0)),
+        twist=t.msg("geometry_msgs/msg/Twist", linear=t.msg("geometry_msgs/msg/Vector3", **v3),
+                    angular=t.msg("geometry_msgs/msg/Vector3", **v3)),
+        acceleration=t.msg("geometry_msgs/msg/Accel", linear=t.msg("geometry_msgs/msg/Vector3", **v3),
+                           angular=t.msg("geometry_msgs/msg/Vector3", **v3)),
+    )  # fmt: skip
+    moved = _call2(ros, "SetEntityState", entity="tb3_0", state=state, set_pose=True, set_twist=False,
+                   set_acceleration=False)  # fmt: skip
+    assert moved.result.result == FEATURE_UNSUPPORTED
+    assert _call2(ros, "GetSimulationState", structure_needs_at_least_one_member=0).result.result == OK
+    jazzy = StandIn(ros.router, 0, "jazzy")
+    try:
+        assert wait_until(lambda: jazzy.service_available("/fleetsim/spawn_entity", f"{SI}/srv/SpawnEntity"), 10.0)
+        request = msg(f"{SI}/srv/SpawnEntity_Request", name="tb3_9", allow_renaming=False, uri="model://turtlebot3_burger",
+                      resource_string="", entity_namespace="", initial_pose=stamped(2.0, 0.5))  # fmt: skip
+        with pytest.raises(TimeoutError):
+            jazzy.call("/fleetsim/spawn_entity", f"{SI}/srv/SpawnEntity", request, timeout=1.0)
+    finally:
+        jazzy.close()
+    assert sorted(r.name for r in ros.daemon.client().robots()) == ["tb3_0", "tb3_1"]

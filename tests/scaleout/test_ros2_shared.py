@@ -26,6 +26,7 @@ Router = tuple[str, subprocess.Popen[str], Path]
 SPAWN = ("/spawn_entity", "gazebo_msgs/srv/SpawnEntity")
 DELETE = ("/delete_entity", "gazebo_msgs/srv/DeleteEntity")
 GET_ENTITIES = ("/fleetsim/get_entities", "simulation_interfaces/srv/GetEntities")
+LIST = "rcl_interfaces/srv/ListParameters"
 TICK = 1.0 / 30
 
 
@@ -48,6 +49,21 @@ def _voice(g: list[Entity]) -> tuple[list[str], list[str]]:
     clock = [e.node for e in g if e.kind == "MP" and e.topic == "/clock"]
     spawn = [e.node for e in g if e.kind == "SS" and e.topic == SPAWN[0]]
     return clock, spawn
+
+
+PARAMETER_SERVICES = ("describe_parameters", "get_parameter_types", "get_parameters", "list_parameters",
+                      "set_parameters", "set_parameters_atomically")  # fmt: skip
+
+
+def _parameters(e: Entity) -> bool:
+    """One of the parameter services every node has (``<node>/list_parameters``, ...)."""
+    return e.topic in {f"{e.node_fqn}/{s}" for s in PARAMETER_SERVICES}
+
+
+def _parameter_nodes(g: list[Entity]) -> set[str]:
+    """The daemons' nodes that serve all six parameter services."""
+    nodes = {e.node for e in g if e.kind == "NN" and e.namespace == "/"}
+    return {n for n in nodes if sum(e.node == n and e.kind == "SS" and _parameters(e) for e in g) == 6}
 
 
 def _spawn(tool: StandIn, name: str, x: float, namespace: str = "") -> Any:
@@ -145,15 +161,17 @@ def test_two_daemons_show_one_simulator_to_ros(ros_mode: str, router: Router, tm
             _wait_for(tmp_path / "simd-b.log", "daemon 'a' speaks for the fleet on ROS 2", daemons["b"])
 
             # the graph: a node per daemon; /clock and the services from a (there first) alone
-            g = tool.wait_graph(lambda g: any(e.node == "fleetsim_b" for e in g))
+            g = tool.wait_graph(lambda g: _parameter_nodes(g) == {"fleetsim_a", "fleetsim_b"})
             assert {e.node_fqn for e in g if e.kind == "NN" and e.namespace == "/"} == {"/fleetsim_a", "/fleetsim_b"}
             clock_nodes, spawn_nodes = _voice(g)
             assert clock_nodes == ["fleetsim_a"] and spawn_nodes == ["fleetsim_a"]
-            assert {e.node for e in g if e.kind == "SS" and e.namespace == "/"} == {"fleetsim_a"}
+            # each node has its own parameter services (as every rclcpp node); the fleet's are a's alone
+            fleet = {e.node for e in g if e.kind == "SS" and e.namespace == "/" and not _parameters(e)}
+            assert fleet == {"fleetsim_a"}
+            assert _parameter_nodes(g) == {"fleetsim_a", "fleetsim_b"}
             # a robot's own services are its navigate_to_pose action's, on its node, from its daemon
-            assert {e.topic.split("/_action/")[0] for e in g if e.kind == "SS" and e.namespace != "/"} <= {
-                f"/{n}/navigate_to_pose" for n in names
-            }
+            robots = {e.topic for e in g if e.kind == "SS" and e.namespace != "/" and not _parameters(e)}
+            assert {t.split("/_action/")[0] for t in robots} <= {f"/{n}/navigate_to_pose" for n in names}
 
             # spawns through ROS land where `fleet spawn` would put them, each with one reply
             here, there = on_a[0], on_b[1]
@@ -178,6 +196,12 @@ def test_two_daemons_show_one_simulator_to_ros(ros_mode: str, router: Router, tm
             assert (missing.success, missing.status_message) == (False, f"Entity [{there}] does not exist")
             assert _spawn(tool, there, 2.0).success
             assert {r.name: r.daemon for r in c.robots()} == placed
+            # a robot's parameters are answered once, by its own daemon (b), through the wildcard every daemon has
+            node = f"/{there}/turtlebot3"
+            assert wait_until(lambda: tool.service_available(f"{node}/list_parameters", LIST), 10.0)
+            request = msg(f"{LIST}_Request", prefixes=[], depth=0)
+            replies = tool.call_all(f"{node}/list_parameters", LIST, request, timeout=3.0)
+            assert [list(r.result.names) for r in replies] == [["use_sim_time"]]
 
             # /clock: every tick of a step once, from one publisher
             clock = tool.subscribe("/clock", "rosgraph_msgs/msg/Clock")

@@ -2,14 +2,17 @@
 
 It joins a ROS domain as one more zenoh participant (its own session, beside the fleet
 protocol's) and shows every robot the way the Gazebo TurtleBot3 does: ``/<ns>/odom``,
-``/<ns>/scan``, ``/<ns>/imu``, ``/<ns>/joint_states`` and ``/<ns>/cmd_vel`` (Twist and
-TwistStamped), the whole fleet on ``/tf`` and each robot's fixed frames on ``/tf_static``
-(namespaced frames, so one tree holds every robot; or Nav2's multi-robot layout, a tree per
-robot on ``/<ns>/tf``: tf_layout.py), sim time on ``/clock``, and gazebo_ros' ``/spawn_entity``
-and ``/delete_entity``; with the navigator on, each robot also has Nav2's ``navigate_to_pose``
-action, ``goal_pose`` and ``plan`` (navigation.py); with localization, ``/map``, ``map`` ->
-``odom`` and ``/<ns>/initialpose`` (localization.py). Liveliness tokens make all of it visible
-to ``ros2 node|topic|service|action list`` and RViz.
+``/<ns>/scan``, ``/<ns>/imu``, ``/<ns>/joint_states`` and ``/<ns>/cmd_vel`` (Twist or
+TwistStamped as the distro's tools send it, both taken), the whole fleet on ``/tf`` and each
+robot's fixed frames on ``/tf_static`` (namespaced frames, so one tree holds every robot; or
+Nav2's multi-robot layout, a tree per robot on ``/<ns>/tf``: tf_layout.py), sim time on
+``/clock``, and gazebo_ros' ``/spawn_entity`` and ``/delete_entity``; with the navigator on,
+each robot also has Nav2's ``navigate_to_pose`` action, ``goal_pose`` and ``plan``
+(navigation.py); with localization, ``/map``, ``map`` -> ``odom`` and ``/<ns>/initialpose``
+(localization.py). Every node also has what rclcpp gives a node: parameter services (``ros2
+param``), ``/rosout`` and ``/parameter_events`` (node_entities.py); the daemon's node logs each
+robot spawned and deleted on ``/rosout``. Liveliness tokens make all of it visible to ``ros2
+node|topic|service|action|param list`` and RViz.
 
 In a fleet shared by several daemons (``simd --join``) each daemon shows its own robots, under a
 node of its own (``/fleetsim_<id>``), and one of them speaks for the fleet: it alone publishes
@@ -32,11 +35,12 @@ import zenoh
 
 from protocol.control import Clock
 from protocol.messages import Time
-from simd.adapters.ros2 import cdr, gazebo_services, graph, simulation_services
+from simd.adapters.ros2 import cdr, gazebo_services, graph, node_entities, simulation_services
 from simd.adapters.ros2.command_intake import RosCommandIntake
-from simd.adapters.ros2.interfaces import Distro
+from simd.adapters.ros2.interfaces import CMD_VEL_DEFAULT, CmdVel, Distro
 from simd.adapters.ros2.localization import RosLocalization
 from simd.adapters.ros2.navigation import RosNavigation
+from simd.adapters.ros2.node_entities import ParameterServer, RobotNodes, Rosout
 from simd.adapters.ros2.robot_ports import Participant, RobotPorts, RosPublisher
 from simd.adapters.ros2.service_server import ServiceServer
 from simd.adapters.ros2.shared_fleet import FleetRequests, SharedFleet, Speaker, engine_ask
@@ -44,7 +48,7 @@ from simd.adapters.ros2.tf_layout import TfLayout
 from simd.adapters.ros2.tf_topics import TfTopics
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
-from simd.core.snapshot import TickSnapshot
+from simd.core.snapshot import RobotState, TickSnapshot
 from simd.engine import Engine
 from simd.engine.outbox import Outbox
 from simd.engine.ports import Deleted, Event, Navigation, Spawned, WorldReset
@@ -66,6 +70,8 @@ class RosOptions:
     distro: Distro = "jazzy"
     #: a frame every robot's odom hangs from (a fixed frame for RViz), or none
     world_frame: str | None = None
+    #: the type(s) each robot's cmd_vel subscription advertises (both are taken): None, the distro's
+    cmd_vel: CmdVel | None = None
     #: each robot's transforms on /<ns>/tf with unprefixed frames (Nav2's multi-robot layout)
     #: instead of the fleet's /tf with prefixed ones
     namespaced_tf: bool = False
@@ -75,6 +81,10 @@ class RosOptions:
     @property
     def layout(self) -> TfLayout:
         return TfLayout(self.namespaced_tf, self.localization, self.world_frame)
+
+    @property
+    def advertised_cmd_vel(self) -> CmdVel:
+        return self.cmd_vel or CMD_VEL_DEFAULT[self.distro]
 
 
 class Ros2Adapter:
@@ -106,6 +116,11 @@ class Ros2Adapter:
         self.robots: dict[str, RobotPorts] = {}
         self.outbox = Outbox("ros2-out")
         self.commands = RosCommandIntake(p, self._known)
+        # what rclcpp gives every node: the daemon's own (its parameters, its /rosout), every robot's
+        node_entities.declare_tokens(p, node, self._tokens, rosout=False)
+        self.rosout = Rosout(p, node, self._tokens)
+        self.own_parameters = ParameterServer(p, self.outbox, node.fqn, lambda path: True)
+        self.robot_nodes = RobotNodes(p, self.outbox, self._known)
         #: Nav2's navigate_to_pose, goal_pose and plan of each robot (not with --no-nav); a robot's
         #: goals go to this daemon's own engine, which navigates it, shared fleet or not
         self.navigation = RosNavigation(p, engine.submit, self.outbox, layout) if engine.navigator is not None else None
@@ -147,9 +162,9 @@ class Ros2Adapter:
 
     def on_event(self, event: Event) -> None:
         if isinstance(event, Spawned):
-            self.outbox.put(partial(self._add_robot, event.robot.namespace, event.robot.model))
+            self.outbox.put(partial(self._add_robot, event.robot))
         elif isinstance(event, Deleted):
-            self.outbox.put(partial(self._remove_robot, event.robot.namespace))
+            self.outbox.put(partial(self._remove_robot, event.robot))
         elif isinstance(event, WorldReset):
             self.outbox.put(self._reset)
         elif isinstance(event, Navigation) and self.navigation is not None:
@@ -171,6 +186,8 @@ class Ros2Adapter:
             self.speaker.close()
         self.outbox.put(self._fall_silent)  # no service call taken once the outbox has stopped
         self.commands.close()
+        self.own_parameters.close()
+        self.robot_nodes.close_inputs()
         if self.navigation is not None:
             self.navigation.close_inputs()
         self.outbox.close()
@@ -178,11 +195,13 @@ class Ros2Adapter:
             self.localization.close()
         if self.navigation is not None:
             self.navigation.close()
+        self.robot_nodes.close()
         for ports in self.robots.values():
             ports.close()
         self.robots.clear()
         if self.tf.fleet_pub is not None:
             self.tf.fleet_pub.undeclare()
+        self.rosout.undeclare()
         undeclare_all(self._tokens)
 
     # -- the fleet's voice --------------------------------------------------------------------------
@@ -233,17 +252,27 @@ class Ros2Adapter:
 
     # -- the outbox thread ------------------------------------------------------------------------
 
-    def _add_robot(self, namespace: str, model: Any) -> None:
+    def _add_robot(self, robot: RobotState) -> None:
+        namespace = robot.namespace
         if namespace in self.robots:
             return
-        ports = self.robots[namespace] = RobotPorts(self.participant, namespace, model, self.layout)
+        ports = RobotPorts(self.participant, namespace, robot.model, self.layout, self.options.advertised_cmd_vel)
+        self.robots[namespace] = ports
+        self.robot_nodes.add_robot(namespace, ports.node)
         if self.navigation is not None:
             self.navigation.add_robot(namespace, ports.node)
+        self.rosout.log(
+            f"spawned {robot.name} ({robot.model.name}) as {ports.node.fqn} at "
+            f"x {robot.x:.3f} y {robot.y:.3f} yaw {robot.yaw:.3f}"
+        )
 
-    def _remove_robot(self, namespace: str) -> None:
+    def _remove_robot(self, robot: RobotState) -> None:
+        namespace = robot.namespace
         ports = self.robots.pop(namespace, None)
         if ports is not None:
             ports.close()
+            self.rosout.log(f"deleted {robot.name} ({ports.node.fqn})")
+        self.robot_nodes.remove_robot(namespace)
         if self.navigation is not None:
             self.navigation.remove_robot(namespace)
         for enc in (self._odom, self._scan, self.tf, self._imu):

@@ -1,11 +1,17 @@
 """``/<ns>/cmd_vel`` from ROS: Twist (teleop_twist_keyboard, Humble's teleop) and TwistStamped
-(Jazzy's TurtleBot3 teleop, ``stamped:=true``, Nav2), for every robot through one subscriber.
+(Jazzy's TurtleBot3 teleop, ``stamped:=true``, Nav2 from Kilted on), for every robot through one
+subscriber.
 
 A ROS publisher puts on ``<domain>/<ns>/cmd_vel/<dds type>/<hash>``; the wildcard
-``<domain>/*/cmd_vel/*/*`` takes both types and both distros' hash chunks, and the type chunk
-picks the decoder. Commands go to the engine like the fleet protocol's, with the same limits and
-watchdog. Anything else (another type, bad CDR, a velocity that is not finite, a robot that does
-not exist) is counted and logged once per kind: the world never changes for it.
+``<domain>/*/cmd_vel/*/*`` takes both types and both kinds of hash chunk (a hash, Humble's
+constant), and the type chunk picks the decoder. So a command of either type drives, whichever
+type the robot's subscription advertises (one, the distro's default or ``--ros-cmd-vel``'s, so
+that tools which infer the topic's type find one: robot_ports.py): data reaches a subscriber by
+its key alone, the graph's tokens only tell tools what is there.
+
+Commands go to the engine like the fleet protocol's, with the same limits and watchdog.
+Anything else (another type, bad CDR, a velocity that is not finite, a robot that does not
+exist) is counted and logged once per kind: the world never changes for it.
 """
 
 from __future__ import annotations

@@ -43,12 +43,16 @@ class Qos:
     depth: int = 10
     reliable: bool = True
     transient_local: bool = False
+    #: how long a sample stays valid, in whole seconds (None: for ever, rmw's default)
+    lifespan_s: int | None = None
 
     def chunk(self) -> str:
-        """``<rel>:<dur>:<hist>,<depth>:<deadline>:<lifespan>:<liveliness>`` with defaults elided."""
+        """``<rel>:<dur>:<hist>,<depth>:<deadline s>,<ns>:<lifespan s>,<ns>:<liveliness>,<lease s>,<ns>``
+        with the defaults elided."""
         rel = 1 if self.reliable else 2
         dur = 1 if self.transient_local else 2
-        return f"{rel}:{dur}:1,{self.depth}:,:,:,,"
+        lifespan = "," if self.lifespan_s is None else f"{self.lifespan_s},0"
+        return f"{rel}:{dur}:1,{self.depth}:,:{lifespan}:,,"
 
 
 #: QoS as the Gazebo TurtleBot3 and tf2 advertise them
@@ -61,6 +65,11 @@ TF_QOS = Qos(depth=100)
 TF_STATIC_QOS = Qos(depth=1, transient_local=True)
 CLOCK_QOS = Qos(depth=1, reliable=False)
 SERVICE_QOS = Qos(depth=10)
+#: what rcl gives every node: its parameter services and /parameter_events (rmw's parameters
+#: profiles, depth 1000), /rosout (transient local, depth 1000, samples valid for 10 s)
+PARAMETERS_QOS = Qos(depth=1000)
+PARAMETER_EVENTS_QOS = Qos(depth=1000)
+ROSOUT_QOS = Qos(depth=1000, transient_local=True, lifespan_s=10)
 
 
 def mangle(name: str) -> str:
@@ -116,6 +125,11 @@ class Node:
                 mangle(self.name),
             )
         )
+
+    @property
+    def fqn(self) -> str:
+        """The node's fully qualified name: ``/fleetsim``, ``/tb3_0/turtlebot3``."""
+        return f"{self.namespace.rstrip('/')}/{self.name}"
 
     def token(self) -> str:
         return self._prefix(self.node_id, Kind.NODE)

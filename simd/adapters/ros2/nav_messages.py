@@ -39,6 +39,7 @@ from protocol.messages import Time
 from protocol.navigation import NavigateRequest, NavigationFeedback, NavigationPath, NavigationResult
 from simd.adapters.ros2.action_server import GoalStatus
 from simd.adapters.ros2.gazebo_services import yaw_of
+from simd.adapters.ros2.service_server import zero_message
 
 #: Nav2's error codes for the ways a goal fails
 NONE = 0
@@ -135,15 +136,16 @@ class Messages:
 
     def feedback(self, action_type: str, uuid: bytes, fb: NavigationFeedback, frame: str) -> bytes:
         """``<A>_FeedbackMessage`` of NavigateToPose: where the robot is, time spent and left,
-        recoveries, metres left along its path."""
+        recoveries, metres left along its path (Lyrical's and Rolling's tracking errors, how far
+        the robot is off its path, stay zero: the navigator does not measure them)."""
         t = self._t
-        inner = t[f"{action_type}_Feedback"](
-            current_pose=self.pose_stamped(fb.stamp, frame, fb.pose.x, fb.pose.y, fb.pose.yaw),
-            navigation_time=self.duration(fb.navigation_time),
-            estimated_time_remaining=self.duration(fb.estimated_time_remaining),
-            number_of_recoveries=min(fb.recoveries, 32767),
-            distance_remaining=float(np.float32(fb.distance_remaining)),
-        )
+        inner = zero_message(self.store, f"{action_type}_Feedback", {
+            "current_pose": self.pose_stamped(fb.stamp, frame, fb.pose.x, fb.pose.y, fb.pose.yaw),
+            "navigation_time": self.duration(fb.navigation_time),
+            "estimated_time_remaining": self.duration(fb.estimated_time_remaining),
+            "number_of_recoveries": min(fb.recoveries, 32767),
+            "distance_remaining": float(np.float32(fb.distance_remaining)),
+        })  # fmt: skip
         goal_id = t["unique_identifier_msgs/msg/UUID"](uuid=np.frombuffer(uuid, dtype=np.uint8).copy())
         message = t[f"{action_type}_FeedbackMessage"](goal_id=goal_id, feedback=inner)
         return bytes(self.store.serialize_cdr(message, f"{action_type}_FeedbackMessage"))

@@ -29,7 +29,7 @@ import zenoh.ext
 from protocol import frames
 from simd.adapters.ros2 import graph, tf_cdr
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
-from simd.adapters.ros2.interfaces import Distro
+from simd.adapters.ros2.interfaces import CmdVel, Distro
 from simd.adapters.ros2.tf_layout import TfLayout
 from simd.adapters.zenoh_entities import Interest, Tally, undeclare_all
 from simd.core.models import RobotModel
@@ -37,7 +37,16 @@ from simd.core.models import RobotModel
 #: the node that holds each robot's topics, in the robot's namespace
 NODE_NAME = "turtlebot3"
 
-CMD_VEL_TYPES = ("geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped")
+TWIST, TWIST_STAMPED = "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"
+#: what ``/<ns>/cmd_vel`` takes on the wire: both, whichever one it advertises
+CMD_VEL_TYPES = (TWIST, TWIST_STAMPED)
+#: the types its subscription advertises, by ``--ros-cmd-vel``: one, so that a tool that infers a
+#: topic's type from the graph (``ros2 topic echo`` and ``pub`` without a type, rosbag2) finds one
+ADVERTISED_CMD_VEL: dict[CmdVel, tuple[str, ...]] = {
+    "twist": (TWIST,),
+    "stamped": (TWIST_STAMPED,),
+    "both": CMD_VEL_TYPES,
+}
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 #: what RViz's "2D Pose Estimate" sends (AMCL's and nav2_loopback_sim's initialpose)
 INITIAL_POSE_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -191,7 +200,8 @@ def declare_node(p: Participant, node: Node, tokens: list[Any]) -> Node:
 class RobotPorts:
     """A robot's ROS entities; also the wheel angles its joint_states report."""
 
-    def __init__(self, p: Participant, namespace: str, model: RobotModel, layout: TfLayout | None = None) -> None:
+    def __init__(self, p: Participant, namespace: str, model: RobotModel, layout: TfLayout | None = None,
+                 cmd_vel: CmdVel = "both") -> None:  # fmt: skip
         self.namespace = namespace
         self.model = model
         self.layout = layout = layout or TfLayout()
@@ -207,7 +217,7 @@ class RobotPorts:
         self.scan = RosPublisher(p, node, scan, graph.SCAN_QOS, t, p.scan_interest)
         self.imu = RosPublisher(p, node, imu_topic, graph.IMU_QOS, t, p.imu_interest)
         self.joint_states = RosPublisher(p, node, joint_topic, graph.JOINT_STATES_QOS, t, p.joints_interest)
-        for typename in CMD_VEL_TYPES:  # the intake subscribes to every robot's cmd_vel at once
+        for typename in ADVERTISED_CMD_VEL[cmd_vel]:  # the intake subscribes to every robot's cmd_vel at once
             topic = p.topic(f"{ns}/cmd_vel", typename)
             token = node.entity_token(p.next_id(), Kind.SUBSCRIPTION, topic, graph.CMD_VEL_QOS)
             t.append(p.session.liveliness().declare_token(token))

@@ -60,9 +60,13 @@ class Call:
         """A message of ``typename`` (for the nested parts of a response); fields not given are zero."""
         return zero_message(self._store, typename, fields)
 
+    def fields(self, typename: str) -> list[str]:
+        """The field names of ``typename`` as this call's distro defines it."""
+        return [name for name, _ in self._store.fielddefs[typename][1]]
+
     @property
     def response_fields(self) -> list[str]:
-        return [name for name, _ in self._store.fielddefs[self._response_type][1]]
+        return self.fields(self._response_type)
 
     def respond(self, **fields: Any) -> None:
         """Answer with a response of these fields, the others zero (any thread; sent from the

@@ -1,5 +1,10 @@
-"""The standard simulator services (simulation_interfaces 1.5, the API Gazebo, Isaac Sim and O3DE
+"""The standard simulator services (simulation_interfaces, the API Gazebo, Isaac Sim and O3DE
 implement), under ``/fleetsim/<name>`` as Gazebo serves them under ``/gzserver/<name>``.
+
+Each distro gets the version it ships (interfaces.py): 1.x on Humble, Jazzy and Kilted, 2.x on
+Lyrical and Rolling, where a spawn and a spawnable carry their ``uri`` and ``resource_string`` in
+an ``entity_resource`` and SetEntityState has ``set_*`` flags. The handlers read and answer both
+layouts; the request decoded and the response built are those of the daemon's distro.
 
 What fleetsim supports is what ``get_simulator_features`` lists: spawning (from an SDF or URDF
 text, or a ``model://turtlebot3_<model>`` URI) and deleting, listing entities with a name
@@ -49,6 +54,7 @@ STOPPED, PLAYING, PAUSED, QUITTING = 0, 1, 2, 3
 SCOPE_DEFAULT, SCOPE_TIME, SCOPE_STATE, SCOPE_SPAWNED, SCOPE_ALL = 0, 1, 2, 4, 255
 CATEGORY_ROBOT = 1
 BOUNDS_EMPTY, BOUNDS_BOX = 0, 1
+SPAWNABLE = f"{PKG}/msg/Spawnable"
 
 #: SimulatorFeatures ids of what is implemented here
 FEATURES = [
@@ -124,10 +130,17 @@ class _Refusal(Exception):
         self.code = code
 
 
+def _resource(msg: Any) -> tuple[str, str]:
+    """(uri, resource_string) of a SpawnEntity request: its own fields in 1.x, its
+    ``entity_resource``'s in 2.x."""
+    holder = getattr(msg, "entity_resource", msg)
+    return str(holder.uri), str(holder.resource_string)
+
+
 def spawn_entity(call: Call) -> None:
     msg = call.request
     try:
-        model = model_from(str(msg.uri), str(msg.resource_string))
+        model = model_from(*_resource(msg))
         pose = msg.initial_pose
         if pose.header.frame_id not in ("", "world", "map", "/map"):
             raise _Refusal(INVALID_POSE, f"initial_pose is in frame {pose.header.frame_id!r}; fleetsim knows world")
@@ -359,9 +372,12 @@ def get_spawnables(call: Call) -> None:
             f"TurtleBot3 {name}: LDS-01 lidar, ±{model.max_linear_velocity} m/s, ±{model.max_angular_velocity} rad/s"
         )
         bounds = call.make(f"{PKG}/msg/Bounds", type=BOUNDS_BOX, points=corners)
-        spawnables.append(
-            call.make(f"{PKG}/msg/Spawnable", uri=f"model://turtlebot3_{name}", description=about, spawn_bounds=bounds)
-        )
+        uri = f"model://turtlebot3_{name}"
+        if "entity_resource" in call.fields(SPAWNABLE):  # 2.x
+            where = {"entity_resource": call.make(f"{PKG}/msg/Resource", uri=uri, resource_string="")}
+        else:
+            where = {"uri": uri}
+        spawnables.append(call.make(SPAWNABLE, description=about, spawn_bounds=bounds, **where))
     _answer(call, OK, spawnables=spawnables)
 
 
