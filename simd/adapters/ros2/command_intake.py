@@ -3,7 +3,9 @@
 
 A ROS publisher puts on ``<domain>/<ns>/cmd_vel/<dds type>/<hash>``; the wildcard
 ``<domain>/*/cmd_vel/*/*`` takes both types and both distros' hash chunks, and the type chunk
-picks the decoder. Commands go to the engine like the fleet protocol's, with the same limits and
+picks the decoder. A command from an older rmw_zenoh (its attachment in the old format,
+attachment.py) drives the robot too, and the log says once that its sender cannot read the
+daemon's topics. Commands go to the engine like the fleet protocol's, with the same limits and
 watchdog. Anything else (another type, bad CDR, a velocity that is not finite, a robot that does
 not exist) is counted and logged once per kind: the world never changes for it.
 """
@@ -31,6 +33,7 @@ class RosCommandIntake:
 
     def __init__(self, p: Participant, known: Callable[[str], bool]) -> None:
         self._known = known
+        self._legacy = p.legacy
         decoders = (decode_twist, decode_twist_stamped)
         self._decoders: dict[tuple[str, str], Callable[[bytes], tuple[float, float]]] = {}
         for typename, decoder in zip(CMD_VEL_TYPES, decoders, strict=True):
@@ -48,6 +51,7 @@ class RosCommandIntake:
         decoder = self._decoders.get((type_chunk, hash_chunk))
         if decoder is None:
             return self._drop("type", f"cmd_vel of type {type_chunk} / {hash_chunk} ignored (Twist or TwistStamped)")
+        self._legacy.check(sample.attachment, f"/{namespace}/cmd_vel")
         payload = sample.payload.to_bytes()
         if len(payload) > MAX_CMD_BYTES:
             return self._drop("size", f"cmd_vel of {len(payload)} bytes ignored")

@@ -23,7 +23,8 @@ import zenoh
 import zenoh.ext
 
 from protocol import frames
-from simd.adapters.ros2 import cdr, graph
+from simd.adapters.ros2 import attachment, cdr, graph
+from simd.adapters.ros2.attachment import LegacyNotice
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.adapters.ros2.interfaces import Distro
 from simd.adapters.zenoh_entities import Interest, Tally, undeclare_all
@@ -49,6 +50,8 @@ class Participant:
     scan_interest: Tally = field(default_factory=Tally)
     imu_interest: Tally = field(default_factory=Tally)
     joints_interest: Tally = field(default_factory=Tally)
+    #: says once per sender that an older rmw_zenoh reached the daemon (attachment.py)
+    legacy: LegacyNotice = field(default_factory=LegacyNotice)
     _ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
 
     def __post_init__(self) -> None:
@@ -78,7 +81,7 @@ class _Attached:
     def put(self, payload: bytes, stamp_ns: int | None = None) -> None:
         """Send with the attachment; ``stamp_ns`` (wall clock) saves reading the clock per message."""
         self.sequence += 1
-        self.pub.put(payload, attachment=graph.attachment(self.sequence, self.gid, stamp_ns))
+        self.pub.put(payload, attachment=attachment.encode(self.sequence, self.gid, stamp_ns))
 
 
 class RosPublisher(_Attached):
