@@ -172,7 +172,10 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
         "--ros-router",
         default=None,
         metavar="ENDPOINT",
-        help="the rmw_zenoh router to join (default: tcp/localhost:7447, where rmw_zenohd listens)",
+        help="the rmw_zenoh router to join (default: tcp/localhost:7447, where rmw_zenohd listens, or the one "
+        "$ZENOH_SESSION_CONFIG_URI's file connects to: the ROS session's config is rmw_zenoh's, and "
+        "ZENOH_SESSION_CONFIG_URI, ZENOH_ROUTER_CONFIG_URI and ZENOH_CONFIG_OVERRIDE change it as they change "
+        "a ROS process's; docs/ros2.md)",
     )
     g.add_argument(
         "--ros-world-frame",
@@ -199,15 +202,16 @@ def add_ros_args(p: argparse.ArgumentParser) -> None:
     g.add_argument(
         "--ros-serve-router",
         action="store_true",
-        help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed)",
+        help="be the router on --ros-router's endpoint instead of joining one (no rmw_zenohd needed; by default "
+        "tcp/localhost:7447, loopback only, where rmw_zenohd listens on every interface)",
     )
     g.add_argument(
         "--ros-mode",
         choices=("peer", "client"),
-        default="peer",
+        default=None,
         help="join the ROS router as a peer that ROS processes reach directly, as rmw_zenoh's processes do, or "
         "as its client, everything through the router (a daemon in a container, which other peers cannot reach) "
-        "(default: %(default)s)",
+        "(default: peer, or the mode of $ZENOH_SESSION_CONFIG_URI's file)",
     )
 
 
@@ -321,21 +325,35 @@ def main(argv: list[str] | None = None) -> int:
             print(f"simd: state {state_path}: restored {restored} robots at sim time {sim.time:.3f} s", flush=True)
         saver = checkpoint.Saver(state_path)
     ros_session = None
-    router = ""
+    router: str | None = None
+    ros_source = ""
     if args.ros2:  # first: with --ros-serve-router the fleet session below connects to it
-        from simd.adapters.ros2.session import DEFAULT_ROUTER, ros_config
+        from protocol.zenoh_config import exposed_without_authentication
+        from simd.adapters.ros2.session import RosConfigError, session_config, zenoh_too_old
 
-        router = args.ros_router or DEFAULT_ROUTER
+        too_old = zenoh_too_old()
+        if too_old is not None:
+            return fail(too_old)
         try:
-            ros_session = zenoh.open(ros_config(router, serve=args.ros_serve_router, mode=args.ros_mode))
+            ros = session_config(args.ros_router, serve=args.ros_serve_router, mode=args.ros_mode, env=os.environ)
+        except RosConfigError as e:
+            return fail(str(e))
+        router, ros_source = ros.router, ros.source
+        try:
+            ros_session = zenoh.open(ros.config)
         except (ValueError, zenoh.ZError) as e:
             msg = zenoh_error_text(e)
             if "in use" in msg.lower():
                 msg = "address already in use (is rmw_zenohd running there? then leave out --ros-serve-router)"
-            return fail(f"cannot open the ROS 2 session on {router}: {msg}")
+            return fail(f"cannot open the ROS 2 session on {router or ros_source}: {msg}")
+        exposed = exposed_without_authentication(ros.config, ros.mode)
+        if exposed:
+            print(f"simd: warning: the ROS 2 session listens on {', '.join(exposed)} without authentication: "
+                  "anyone who can reach it can call its services and drive the robots (docs/security.md)",
+                  file=sys.stderr, flush=True)  # fmt: skip
     opts = options_from_args(args, server=True)
-    through_router = args.ros2 and not args.listen and not args.config
-    if through_router:
+    through_router = router is not None and not args.listen and not args.config
+    if through_router and router is not None:
         # rmw_zenohd (or our own router) holds the port fleet clients know, 7447: the fleet
         # protocol is served through it instead of on a port of its own, as the router's client
         # (a peer that does not listen hears no other peer through a router: the daemons of a
@@ -418,7 +436,8 @@ def main(argv: list[str] | None = None) -> int:
             shared = SharedFleet(session, keys, args.id) if args.join else None
             ros_adapter = Ros2Adapter(ros_session, engine, options, shared)
             how = "serving as the router on" if args.ros_serve_router else "joining the router at"
-            print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {router}", flush=True)
+            print(f"simd: ROS 2 ({ros_distro}, domain {ros_domain}) {how} {router or '(no router named)'}; "
+                  f"session config: {ros_source}", flush=True)  # fmt: skip
 
         def on_signal(signum: int, frame: FrameType | None) -> None:
             log.info("received %s, stopping", signal.Signals(signum).name)

@@ -14,8 +14,12 @@ the other. It behaves as a ROS process does:
   reply by its sequence number;
 - a late ``/tf_static`` subscriber that asks the publishers' caches for history, as a
   transient-local ROS subscription does;
-- the graph read from liveliness tokens, parsed as rmw_zenoh's GraphCache parses them, and
-  what ``ros2 node info``, ``ros2 topic list -t`` and ``ros2 param`` make of it.
+- the graph read from liveliness tokens, parsed as rmw_zenoh's GraphCache parses them, with
+  each entity's GID computed from its token as rmw_zenoh computes it (xxh3.py, checked against
+  xxHash's published vectors) and its QoS chunk read as ``keyexpr_to_qos`` reads it, and what
+  ``ros2 node info``, ``ros2 topic list -t`` and ``ros2 param`` make of the graph;
+- with ``legacy=True``, an older rmw_zenoh (jazzy 0.2.0-0.2.3, humble 0.1.0-0.1.1, rolling
+  0.3-0.5), whose attachments name each value (``attachment_helpers.cpp`` of jazzy 0.2.3).
 
 Types are per distro where the distros differ: simulation_interfaces is 1.x on Humble, Jazzy
 and Kilted and 2.x (branch main, 2.1.0) on Lyrical and Rolling, and Nav2's NavigateToPose
@@ -40,6 +44,8 @@ import zenoh
 import zenoh.ext
 from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
+
+from tests.ros2 import xxh3
 
 # -- types and hashes ---------------------------------------------------------------------------
 
@@ -279,6 +285,30 @@ def attachment(seq: int, gid: bytes) -> bytes:
     return struct.pack("<qqB", seq, time.time_ns(), 16) + gid
 
 
+#: the older attachment's values, as zenoh-ext deserializes them (a tuple type is a value here)
+_LEGACY_TYPES: Any = tuple[str, zenoh.ext.Int64, str, zenoh.ext.Int64, str, bytes]
+
+
+def legacy_attachment(seq: int, gid: bytes) -> bytes:
+    """An older rmw_zenoh's attachment: zenoh-ext's serializer with each value's name before it."""
+    values = ("sequence_number", zenoh.ext.Int64(seq), "source_timestamp", zenoh.ext.Int64(time.time_ns()),
+              "source_gid", gid)  # fmt: skip
+    return bytes(zenoh.ext.z_serialize(values).to_bytes())
+
+
+def read_legacy_attachment(raw: bytes) -> tuple[int, bytes]:
+    """(sequence, GID) of an older rmw_zenoh's attachment; ValueError for anything else (its
+    parser throws)."""
+    try:
+        names_values: tuple[str, int, str, int, str, bytes] = zenoh.ext.z_deserialize(_LEGACY_TYPES, zenoh.ZBytes(raw))
+    except zenoh.ext.ZDeserializeError as e:
+        raise ValueError(f"not a string-keyed attachment ({len(raw)} bytes)") from e
+    seq_name, seq, ts_name, _, gid_name, gid = names_values
+    if (seq_name, ts_name, gid_name) != ("sequence_number", "source_timestamp", "source_gid"):
+        raise ValueError(f"unexpected names {seq_name!r}, {ts_name!r}, {gid_name!r}")
+    return int(seq), bytes(gid)
+
+
 # -- the graph --------------------------------------------------------------------------------
 
 
@@ -296,10 +326,16 @@ class Entity:
     type: str = ""  # 'sensor_msgs::msg::dds_::LaserScan_'
     hash: str = ""
     qos: str = ""
+    token: str = ""  # the whole token
 
     @property
     def node_fqn(self) -> str:
         return f"{self.namespace.rstrip('/')}/{self.node}"
+
+    @property
+    def gid(self) -> bytes:
+        """As rmw_zenoh's graph cache derives it from the token (what ``ros2 topic info -v`` shows)."""
+        return xxh3.gid(self.token)
 
 
 def _unmangle(chunk: str) -> str:
@@ -319,20 +355,85 @@ def parse_token(token: str) -> Entity:
     if kind == "NN":
         if len(parts) != 9:
             raise ValueError(f"a node token has 9 chunks: {token}")
-        return Entity(parts[2], parts[3], parts[4], kind, _unmangle(parts[7]), parts[8])
+        return Entity(parts[2], parts[3], parts[4], kind, _unmangle(parts[7]), parts[8], token=token)
     if len(parts) != 13:
         raise ValueError(f"an entity token has 13 chunks: {token}")
+    parse_qos(parts[12])  # the graph cache drops an entity whose QoS does not parse
     return Entity(
         parts[2], parts[3], parts[4], kind, _unmangle(parts[7]), parts[8],
-        _unmangle(parts[9]), parts[10], parts[11], parts[12],
+        _unmangle(parts[9]), parts[10], parts[11], parts[12], token,
     )  # fmt: skip
 
 
-def parse_qos(chunk: str) -> dict[str, int]:
-    """``<rel>:<dur>:<hist>,<depth>:...``: the fields tf2 and echo care about."""
-    rel, dur, hist = chunk.split(":")[:3]
-    _history, depth = hist.split(",")
-    return {"reliability": int(rel or 1), "durability": int(dur or 2), "depth": int(depth or 10)}
+#: RMW_DURATION_INFINITE as (seconds, nanoseconds)
+INFINITE = (9223372036, 854775807)
+
+
+@dataclass(frozen=True)
+class QosProfile:
+    """An entity's QoS with rmw's enum numbers; the defaults are rmw_zenoh's (``src/detail/qos.cpp``):
+    reliable, volatile, keep last 42, infinite durations, automatic liveliness."""
+
+    reliability: int = 1  # 1 reliable, 2 best effort
+    durability: int = 2  # 1 transient local, 2 volatile
+    history: int = 1  # 1 keep last, 2 keep all
+    depth: int = 42
+    deadline: tuple[int, int] = INFINITE
+    lifespan: tuple[int, int] = INFINITE
+    liveliness: int = 1  # 1 automatic, 3 manual by topic
+    lease: tuple[int, int] = INFINITE
+
+
+#: the enum numbers each field takes (rmw/types.h), as ``std::to_string`` writes them
+_ENUMS = {
+    "reliability": ("0", "1", "2", "3", "4"),
+    "durability": ("0", "1", "2", "3", "4"),
+    "history": ("0", "1", "2", "3"),
+    "liveliness": ("0", "1", "3", "4", "5"),
+}
+
+
+def parse_qos(chunk: str) -> QosProfile:
+    """A token's QoS chunk as rmw_zenoh's ``keyexpr_to_qos`` reads it (``src/detail/liveliness_utils.cpp``,
+    jazzy 0.2.10): ``<rel>:<dur>:<hist>,<depth>:<deadline s>,<ns>:<lifespan s>,<ns>:<liveliness>,<lease s>,<ns>``,
+    an empty field meaning rmw_zenoh's default, so that ``::,1:,:,:,,`` and ``1:2:1,1:,:,:,,`` are one
+    profile. ValueError where rmw_zenoh gives up (too few parts, an unknown enum, a number that is not one)."""
+    parts = chunk.split(":")
+    if len(parts) < 6:
+        raise ValueError(f"QoS {chunk!r}: fewer than 6 parts")
+    history, deadline, lifespan, liveliness = (parts[i].split(",") for i in (2, 3, 4, 5))
+    if min(len(history), len(deadline), len(lifespan)) < 2 or len(liveliness) < 3:
+        raise ValueError(f"QoS {chunk!r}: a part has too few fields")
+    d = QosProfile()
+
+    def enum(field: str, text: str, default: int) -> int:
+        if text == "":
+            return default
+        if text not in _ENUMS[field]:
+            raise ValueError(f"QoS {chunk!r}: {field} {text!r}")
+        return int(text)
+
+    def number(text: str, default: int) -> int:
+        if text == "":
+            return default
+        if not (text.isascii() and text.isdigit()):
+            raise ValueError(f"QoS {chunk!r}: {text!r} is not a number")
+        return int(text)
+
+    return QosProfile(
+        reliability=enum("reliability", parts[0], d.reliability),
+        durability=enum("durability", parts[1], d.durability),
+        history=enum("history", history[0], d.history),
+        depth=number(history[1], d.depth),
+        deadline=(number(deadline[0], d.deadline[0]), number(deadline[1], d.deadline[1])),
+        lifespan=(number(lifespan[0], d.lifespan[0]), number(lifespan[1], d.lifespan[1])),
+        liveliness=enum("liveliness", liveliness[0], d.liveliness),
+        lease=(number(liveliness[1], d.lease[0]), number(liveliness[2], d.lease[1])),
+    )
+
+
+def _raw(zbytes: zenoh.ZBytes | None) -> bytes:
+    return zbytes.to_bytes() if zbytes is not None else b""
 
 
 def ros_type(dds_type: str) -> str:
@@ -367,7 +468,8 @@ def node_info(graph: list[Entity], node: str) -> dict[str, dict[str, set[str]]]:
 class StandIn:
     """One ROS process: a peer session joined to the router at ``router``."""
 
-    def __init__(self, router: str, domain: int = 0, distro: str = "jazzy") -> None:
+    def __init__(self, router: str, domain: int = 0, distro: str = "jazzy", *, legacy: bool = False) -> None:
+        """``legacy``: an rmw_zenoh of before the attachment's change (jazzy 0.2.0-0.2.3)."""
         conf = zenoh.Config()
         conf.insert_json5("mode", '"peer"')
         conf.insert_json5("connect/endpoints", json.dumps([router]))
@@ -376,6 +478,7 @@ class StandIn:
         self.session = zenoh.open(conf)
         self.domain = domain
         self.distro = distro
+        self.legacy = legacy
         self.gid = hashlib.md5(str(self.session.zid()).encode()).digest()
         self._seq = 0
         self._entities: list[Any] = []
@@ -395,6 +498,17 @@ class StandIn:
     def msg(self, typename: str, **fields: Any) -> Any:
         """A message of ``typename`` as this tool's distro defines it."""
         return msg(typename, self.distro, **fields)
+
+    def _attachment(self, seq: int, gid: bytes) -> bytes:
+        return legacy_attachment(seq, gid) if self.legacy else attachment(seq, gid)
+
+    def _read_attachment(self, raw: bytes) -> tuple[int, bytes]:
+        """(sequence, GID) as this tool's rmw_zenoh reads an attachment; ValueError where it throws."""
+        if self.legacy:
+            return read_legacy_attachment(raw)
+        if len(raw) != 33 or raw[16] != 16:
+            raise ValueError(f"attachment of {len(raw)} bytes")
+        return struct.unpack_from("<q", raw)[0], bytes(raw[17:])
 
     # graph
     def graph(self) -> list[Entity]:
@@ -420,15 +534,22 @@ class StandIn:
         out: queue.Queue[tuple[Any, int, bytes, bytes]] = queue.Queue()
 
         def on_sample(sample: zenoh.Sample) -> None:
-            att = sample.attachment.to_bytes() if sample.attachment is not None else b""
-            if len(att) != 33 or att[16] != 16:
-                self.rejected.append(f"{sample.key_expr}: attachment of {len(att)} bytes")
+            try:
+                seq, gid = self._read_attachment(_raw(sample.attachment))
+            except ValueError as e:
+                self.rejected.append(f"{sample.key_expr}: {e}")
                 return
-            seq = struct.unpack_from("<q", att)[0]
             payload = sample.payload.to_bytes()
-            out.put((deserialize(payload, typename, self.distro), seq, payload, bytes(att[17:])))
+            out.put((deserialize(payload, typename, self.distro), seq, payload, gid))
 
         self._entities.append(self.session.declare_subscriber(self.key(name, typename), on_sample))
+        return out
+
+    def timestamps(self, name: str, typename: str) -> list[Any]:
+        """The zenoh timestamps of the topic's samples as they arrive (None: a sample without one)."""
+        out: list[Any] = []
+        sub = self.session.declare_subscriber(self.key(name, typename), lambda sample: out.append(sample.timestamp))
+        self._entities.append(sub)
         return out
 
     def subscribe_late(self, name: str, typename: str, depth: int = 100) -> queue.Queue[Any]:
@@ -436,9 +557,10 @@ class StandIn:
         out: queue.Queue[Any] = queue.Queue()
 
         def on_sample(sample: zenoh.Sample) -> None:
-            att = sample.attachment.to_bytes() if sample.attachment is not None else b""
-            if len(att) != 33:
-                self.rejected.append(f"{sample.key_expr}: attachment of {len(att)} bytes")
+            try:
+                self._read_attachment(_raw(sample.attachment))
+            except ValueError as e:
+                self.rejected.append(f"{sample.key_expr}: {e}")
                 return
             out.put(deserialize(sample.payload.to_bytes(), typename, self.distro))
 
@@ -470,7 +592,7 @@ class StandIn:
             seq[0] += 1
             payload = serialize(message, typename, self.distro)
             if with_attachment:
-                pub.put(payload, attachment=attachment(seq[0], gid))
+                pub.put(payload, attachment=self._attachment(seq[0], gid))
             else:
                 pub.put(payload)
 
@@ -509,7 +631,7 @@ class StandIn:
         replies = self.session.get(
             self.key(name, srv_type),
             payload=payload,
-            attachment=attachment(seq, self.gid),
+            attachment=self._attachment(seq, self.gid),
             target=zenoh.QueryTarget.ALL_COMPLETE,
             consolidation=zenoh.ConsolidationMode.NONE,
             timeout=timeout,
@@ -520,12 +642,12 @@ class StandIn:
         for reply in replies:
             if reply.ok is None:
                 continue  # rclcpp logs error replies and keeps waiting
-            att = reply.ok.attachment.to_bytes() if reply.ok.attachment is not None else b""
-            if len(att) != 33:
-                self.rejected.append(f"reply without attachment on {name}")
+            try:
+                rseq, gid = self._read_attachment(_raw(reply.ok.attachment))
+            except ValueError as e:
+                self.rejected.append(f"reply on {name}: {e}")
                 continue
-            rseq = struct.unpack_from("<q", att)[0]
-            if rseq != seq or att[17:] != self.gid:
+            if rseq != seq or gid != self.gid:
                 self.rejected.append(f"reply for sequence {rseq}, not {seq}")
                 continue
             yield deserialize(reply.ok.payload.to_bytes(), f"{srv_type}_Response", self.distro)

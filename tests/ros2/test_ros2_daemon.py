@@ -138,9 +138,8 @@ def test_graph_names_nodes_topics_and_services_as_gazebo(ros: RosDomain) -> None
     for topic, typename in expected.items():
         e = pubs[(topic, dds_name(typename))]
         assert e.hash == type_hash(typename)
-    assert parse_qos(pubs[("/tf_static", dds_name("tf2_msgs/msg/TFMessage"))].qos) == {
-        "reliability": 1, "durability": 1, "depth": 1,
-    }  # fmt: skip
+    tf_static = parse_qos(pubs[("/tf_static", dds_name("tf2_msgs/msg/TFMessage"))].qos)
+    assert (tf_static.reliability, tf_static.durability, tf_static.depth) == (1, 1, 1)
     subs = {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"}
     assert subs == {dds_name("geometry_msgs/msg/Twist")}  # Jazzy's tools' default: one type
     services = {(e.topic, e.type, e.hash) for e in g if e.kind == "SS"}
@@ -180,6 +179,73 @@ def test_odom_scan_tf_and_their_fields(ros: RosDomain) -> None:
         assert all(x.header.frame_id == x.child_frame_id.replace("base_footprint", "odom") for x in t.transforms)
     assert frames == {"TB3_1/base_footprint", "TB3_2/base_footprint"}
     assert tool.rejected == []
+
+
+def test_a_samples_gid_is_its_publishers_as_the_graph_shows_it(ros: RosDomain) -> None:
+    """``ros2 topic info -v`` shows the GID rmw_zenoh derives from the publisher's token; a
+    message's ``publisher_gid`` is its attachment's: the two agree. And the samples are
+    timestamped, as rmw_zenoh's sessions timestamp theirs."""
+    tool = ros.tool
+    assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+    stamps = tool.timestamps("/TB3_1/odom", "nav_msgs/msg/Odometry")
+    for topic, typename in [("/TB3_1/odom", "nav_msgs/msg/Odometry"), ("/tf", "tf2_msgs/msg/TFMessage")]:
+        _, _, _, gid = wait_for(tool.subscribe(topic, typename))
+        g = tool.wait_graph(lambda g, topic=topic: any(e.kind == "MP" and e.topic == topic for e in g))
+        assert [e.gid for e in g if e.kind == "MP" and e.topic == topic] == [gid]
+    assert wait_until(lambda: len(stamps) > 0, 5.0)
+    assert all(stamp is not None for stamp in stamps)
+    assert tool.rejected == []
+
+
+def test_an_older_rmw_zenoh_drives_and_calls_and_is_told_once(ros: RosDomain) -> None:
+    """Jazzy 0.2.0-0.2.3 put its values after their names in every attachment. Its commands
+    drive, its calls are answered in its own format, and the log says once per sender which
+    releases can also read what the daemon publishes (this one cannot)."""
+    old = StandIn(ros.router, legacy=True)
+    try:
+        assert wait_until(lambda: old.service_available(*SPAWN), 10.0)  # as the spawner node waits
+        r = old.call(*SPAWN, spawn_request("burger_1", "TB3_1", -2.0, -0.5))
+        assert r.success, r.status_message
+        assert old.call(*SPAWN, spawn_request("burger_1", "TB3_1", -2.0, -0.5)).status_message.endswith("exists.")
+        pub = old.publisher("/TB3_1/cmd_vel", "geometry_msgs/msg/Twist")
+        drive_until(ros.tool, "TB3_1", lambda: pub(twist(0.2, 0.0)), lambda m: m.pose.pose.position.x > -1.9)
+        odom = old.subscribe("/TB3_1/odom", "nav_msgs/msg/Odometry")
+        assert wait_until(lambda: len(old.rejected) > 0, 5.0) and odom.empty()  # it cannot read today's format
+    finally:
+        old.close()
+    log = ros.daemon.log()
+    told = [line for line in log.splitlines() if "an older rmw_zenoh" in line]
+    assert len(told) == 2, told  # its client, its publisher: once each
+    assert any("/spawn_entity: an older rmw_zenoh" in line for line in told)
+    assert any("/TB3_1/cmd_vel: an older rmw_zenoh" in line for line in told)
+    assert "jazzy >= 0.2.4, humble >= 0.1.2, kilted >= 0.6.0, rolling >= 0.6.0" in told[0]
+    assert "Traceback" not in log
+
+
+def test_the_session_config_comes_from_the_environment_as_for_a_ros_process(
+    router: str, daemon_factory: Callable[..., Any], tmp_path: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """ZENOH_SESSION_CONFIG_URI replaces the session's config (this file does not timestamp, and
+    connects nowhere useful); ZENOH_CONFIG_OVERRIDE then points it at the router."""
+    path = tmp_path / "session.json5"
+    path.write_text('{mode: "peer", connect: {endpoints: ["tcp/127.0.0.1:1"]}, '
+                    'listen: {endpoints: ["tcp/127.0.0.1:0"]}, scouting: {multicast: {enabled: false}}}')  # fmt: skip
+    overrides = f'connect/endpoints=["{router}"]'
+    monkeypatch.setenv("ZENOH_SESSION_CONFIG_URI", str(path))
+    monkeypatch.setenv("ZENOH_CONFIG_OVERRIDE", overrides)
+    d = daemon_factory("--ros2")  # no --ros-router: the environment's
+    tool = StandIn(router)
+    try:
+        assert wait_until(lambda: tool.service_available(*SPAWN), 10.0)
+        assert spawn(tool, "burger_1", "TB3_1", -2.0, -0.5).success
+        stamps = tool.timestamps("/TB3_1/odom", "nav_msgs/msg/Odometry")
+        assert wait_until(lambda: len(stamps) > 2, 5.0)
+        assert all(stamp is None for stamp in stamps)  # the file's config, not the built-in one
+    finally:
+        tool.close()
+    line = next(x for x in d.log().splitlines() if x.startswith("simd: ROS 2"))
+    assert f"joining the router at {router}; session config: ZENOH_SESSION_CONFIG_URI={path}" in line
+    assert f"ZENOH_CONFIG_OVERRIDE={overrides}" in line
 
 
 def test_tf_static_reaches_a_late_joiner(ros: RosDomain) -> None:
@@ -344,6 +410,10 @@ def _reaches(frame: str, root: str, parents: dict[str, str]) -> bool:
         (["--ros-serve-router", "--ros-mode", "client"], {}, "leave out --ros-mode client"),
         (["--ros-localization", "--ros-world-frame", "world"], {}, "a frame has one parent"),
         (["--ros-tf", "prefixed"], {}, "invalid choice"),
+        ([], {"ZENOH_CONFIG_OVERRIDE": "transport/link/tx/lease"}, "'transport/link/tx/lease' is not KEY=VALUE"),
+        ([], {"ZENOH_CONFIG_OVERRIDE": "transport/link/tx/lease=soon"}, "ZENOH_CONFIG_OVERRIDE: cannot set"),
+        ([], {"ZENOH_SESSION_CONFIG_URI": "/no/such/ros.json5"}, "ZENOH_SESSION_CONFIG_URI=/no/such/ros.json5: not a"),
+        (["--ros-serve-router"], {"ZENOH_ROUTER_CONFIG_URI": "/no/such/router.json5"}, "ZENOH_ROUTER_CONFIG_URI="),
     ],
 )
 def test_bad_ros_flags_are_one_clear_line(args: list[str], env: dict[str, str], message: str) -> None:

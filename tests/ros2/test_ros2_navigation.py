@@ -239,7 +239,7 @@ def test_action_list_and_the_entities_hashes_and_qos(ros: RosDomain) -> None:
     from tests.ros2.standin import parse_qos
 
     status_qos = parse_qos(mine[("MP", "/TB3_1/navigate_to_pose/_action/status")].qos)
-    assert status_qos == {"reliability": 1, "durability": 1, "depth": 1}  # rcl_action's status QoS
+    assert (status_qos.reliability, status_qos.durability, status_qos.depth) == (1, 1, 1)  # rcl_action's status QoS
     # a wildcard call is somebody looking: no answer, no goal
     key = f"0/*/navigate_to_pose/_action/send_goal/{dds_name(NAV + '_SendGoal')}/{type_hash(NAV + '_SendGoal')}"
     assert [r for r in ros.tool.session.get(key, timeout=1.0) if r.ok is not None] == []

@@ -14,7 +14,7 @@ import zenoh.ext
 from rosbags.typesys import Stores, get_typestore
 
 from protocol.frames import Transform
-from simd.adapters.ros2 import cdr, gazebo_services, graph, interfaces, tf_cdr
+from simd.adapters.ros2 import attachment, cdr, gazebo_services, graph, interfaces, tf_cdr
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.core.snapshot import TickSnapshot
 from tests.ros2 import standin
@@ -139,21 +139,87 @@ def test_tokens_parse_as_the_graph_cache_reads_them() -> None:
     topic = Topic("/tb3_0/scan", "sensor_msgs/msg/LaserScan", 5, "jazzy")
     e = standin.parse_token(node.entity_token(9, Kind.PUBLISHER, topic, graph.SCAN_QOS))
     assert (e.kind, e.topic, e.type, e.hash) == ("MP", "/tb3_0/scan", "sensor_msgs::msg::dds_::LaserScan_", topic.hash)
-    assert standin.parse_qos(e.qos) == {"reliability": 1, "durability": 2, "depth": 5}
+    assert standin.parse_qos(e.qos) == standin.QosProfile(reliability=1, durability=2, depth=5)
     root = Node(domain=0, zid="ab12", node_id=1, namespace="/", name="fleetsim")
     assert standin.parse_token(root.token()).namespace == "/"
-    assert Qos(depth=1, transient_local=True).chunk() == "1:1:1,1:,:,:,,"  # the reference's example
-    assert Qos(depth=10).chunk() == "1:2:1,10:,:,:,,"
-    assert graph.ROSOUT_QOS.chunk() == "1:1:1,1000:,:10,0:,,"  # rcl's rosout: lifespan 10 s, 0 ns
+    assert graph.ROSOUT_QOS.chunk() == ":1:,1000:,:10,0:,,"  # rcl's rosout: lifespan 10 s, 0 ns
+
+
+#: rmw_zenoh's qos_to_keyexpr leaves out what equals its defaults (reliable, volatile, keep last,
+#: depth 42, infinite durations): the chunks the audit of our wire expected (ros2-wire-audit M4)
+QOS_CHUNKS = [
+    (graph.ODOM_QOS, "::,1:,:,:,,"),  # reliable, volatile, keep last 1
+    (graph.TF_STATIC_QOS, ":1:,1:,:,:,,"),  # transient local
+    (graph.CLOCK_QOS, "2::,1:,:,:,,"),  # best effort
+    (graph.SERVICE_QOS, "::,10:,:,:,,"),
+    (Qos(depth=42), "::,:,:,:,,"),  # every field rmw_zenoh's default
+    (Qos(depth=7, reliable=False, transient_local=True), "2:1:,7:,:,:,,"),
+]
+
+
+@pytest.mark.parametrize(("qos", "chunk"), QOS_CHUNKS)
+def test_qos_chunks_are_written_as_rmw_zenoh_writes_them(qos: Qos, chunk: str) -> None:
+    assert qos.chunk() == chunk
+    profile = standin.parse_qos(chunk)
+    assert (profile.reliability, profile.durability, profile.history, profile.depth) == (
+        1 if qos.reliable else 2, 1 if qos.transient_local else 2, 1, qos.depth
+    )  # fmt: skip
+    assert profile.deadline == profile.lifespan == profile.lease == standin.INFINITE and profile.liveliness == 1
+
+
+@pytest.mark.parametrize(
+    ("short", "explicit"),
+    [("::,1:,:,:,,", "1:2:1,1:,:,:,,"), (":1:,1:,:,:,,", "1:1:1,1:,:,:,,"), ("2::,1:,:,:,,", "2:2:1,1:,:,:,,"),
+     ("::,:,:,:,,", "1:2:1,42:9223372036,854775807:9223372036,854775807:1,9223372036,854775807")],
+)  # fmt: skip
+def test_elided_and_explicit_qos_chunks_are_one_profile(short: str, explicit: str) -> None:
+    """keyexpr_to_qos reads an empty field as the default: our older tokens meant what the new ones say."""
+    assert standin.parse_qos(short) == standin.parse_qos(explicit)
+
+
+@pytest.mark.parametrize("chunk", ["::,1:,:,:,", "::1:,:,:,,", "7::,1:,:,:,,", "::,-1:,:,:,,", "::,x:,:,:,,", ""])
+def test_qos_chunks_rmw_zenoh_would_not_read_are_refused_by_the_stand_in(chunk: str) -> None:
+    with pytest.raises(ValueError):
+        standin.parse_qos(chunk)
 
 
 def test_attachment_is_rmw_zenohs_33_bytes() -> None:
     gid = bytes(range(16))
-    raw = graph.attachment(42, gid, stamp_ns=1_700_000_000_123)
+    raw = attachment.encode(42, gid, stamp_ns=1_700_000_000_123)
     assert raw == zenoh.ext.z_serialize((zenoh.ext.Int64(42), zenoh.ext.Int64(1_700_000_000_123), gid)).to_bytes()
-    assert graph.parse_attachment(raw) == (42, 1_700_000_000_123, gid)
+    assert attachment.decode(raw) == attachment.Attachment(42, 1_700_000_000_123, gid)
     with pytest.raises(ValueError):
-        graph.parse_attachment(raw[:-1])
+        attachment.decode(raw[:-1])
+
+
+def test_older_rmw_zenohs_attachment_is_read_and_echoed_in_its_format() -> None:
+    """Jazzy 0.2.0-0.2.3 (attachment_helpers.cpp): each value after its name, zenoh-ext serialized."""
+    gid = bytes(range(16, 32))
+    values = ("sequence_number", zenoh.ext.Int64(7), "source_timestamp", zenoh.ext.Int64(1_700_000_000_000),
+              "source_gid", gid)  # fmt: skip
+    raw = zenoh.ext.z_serialize(values).to_bytes()
+    att = attachment.decode(raw)
+    assert att == attachment.Attachment(7, 1_700_000_000_000, gid, legacy=True)
+    assert attachment.encode_legacy(7, gid, 1_700_000_000_000) == raw
+    reply = attachment.echo(att)
+    assert standin.read_legacy_attachment(reply) == (7, gid)  # what the older client's parser reads
+    current = attachment.decode(attachment.echo(attachment.decode(attachment.encode(3, gid))))
+    assert (current.sequence, current.gid, current.legacy) == (3, gid, False)
+    for bad in (raw[:-1], raw.replace(b"source_gid", b"source_GID"), b"\x0fsequence_number" + bytes(61)):
+        with pytest.raises(ValueError):
+            attachment.decode(bad)
+
+
+def test_the_legacy_notice_says_it_once_per_sender(caplog: pytest.LogCaptureFixture) -> None:
+    notice = attachment.LegacyNotice()
+    old_a, old_b = (attachment.Attachment(1, 0, bytes([i]) * 16, legacy=True) for i in (1, 2))
+    with caplog.at_level("WARNING"):
+        for att in (old_a, old_a, old_b, attachment.Attachment(1, 0, bytes(16)), old_a):
+            notice.note(att, "/TB3_1/cmd_vel")
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and notice.count == 4
+    assert lines[0].startswith("/TB3_1/cmd_vel: an older rmw_zenoh")
+    assert "jazzy >= 0.2.4, humble >= 0.1.2, kilted >= 0.6.0, rolling >= 0.6.0" in lines[0]
 
 
 # -- CDR bytes --------------------------------------------------------------------------------

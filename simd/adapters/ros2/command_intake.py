@@ -7,7 +7,9 @@ A ROS publisher puts on ``<domain>/<ns>/cmd_vel/<dds type>/<hash>``; the wildcar
 constant), and the type chunk picks the decoder. So a command of either type drives, whichever
 type the robot's subscription advertises (one, the distro's default or ``--ros-cmd-vel``'s, so
 that tools which infer the topic's type find one: robot_ports.py): data reaches a subscriber by
-its key alone, the graph's tokens only tell tools what is there.
+its key alone, the graph's tokens only tell tools what is there. A command from an older
+rmw_zenoh (its attachment in the old format, attachment.py) drives the robot too, and the log
+says once that its sender cannot read the daemon's topics.
 
 Commands go to the engine like the fleet protocol's, with the same limits and watchdog.
 Anything else (another type, bad CDR, a velocity that is not finite, a robot that does not
@@ -37,6 +39,7 @@ class RosCommandIntake:
 
     def __init__(self, p: Participant, known: Callable[[str], bool]) -> None:
         self._known = known
+        self._legacy = p.legacy
         decoders = (decode_twist, decode_twist_stamped)
         self._decoders: dict[tuple[str, str], Callable[[bytes], tuple[float, float]]] = {}
         for typename, decoder in zip(CMD_VEL_TYPES, decoders, strict=True):
@@ -54,6 +57,7 @@ class RosCommandIntake:
         decoder = self._decoders.get((type_chunk, hash_chunk))
         if decoder is None:
             return self._drop("type", f"cmd_vel of type {type_chunk} / {hash_chunk} ignored (Twist or TwistStamped)")
+        self._legacy.check(sample.attachment, f"/{namespace}/cmd_vel")
         payload = sample.payload.to_bytes()
         if len(payload) > MAX_CMD_BYTES:
             return self._drop("size", f"cmd_vel of {len(payload)} bytes ignored")

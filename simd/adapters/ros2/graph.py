@@ -1,4 +1,4 @@
-"""rmw_zenoh's naming: data keys, liveliness tokens (the ROS graph) and the attachment.
+"""rmw_zenoh's naming: data keys, liveliness tokens (the ROS graph), their QoS chunk and GIDs.
 
 From rmw_zenoh's design document ("Topic and Service name mapping", "Graph Cache",
 "Publishers"): a topic ``/tb3_0/scan`` of ``sensor_msgs/msg/LaserScan`` in domain 0 is the key
@@ -8,21 +8,22 @@ its nodes and their publishers, subscriptions and services with liveliness token
 subscribe on exact keys and read the graph from the tokens only: without a token a topic is
 invisible to ``ros2 topic list`` and a service never "available" to a waiting client.
 
-Every sample carries a 33-byte attachment (sequence number, wall-clock source timestamp, the
-publisher's 16-byte GID); a ROS subscription drops samples without one.
+An entity's GID is derived from its token as rmw_zenoh derives it, so that the GID a sample's
+attachment (attachment.py) carries is the one ``ros2 topic info -v`` shows for its publisher.
 """
 
 from __future__ import annotations
 
-import hashlib
-import struct
-import time
 from dataclasses import dataclass
 from enum import Enum
+
+import xxhash
 
 from simd.adapters.ros2.interfaces import Distro, dds_type_name, type_hash
 
 ADMIN_SPACE = "@ros2_lv"
+#: rmw_zenoh's default depth (``src/detail/qos.cpp``): a token leaves out a depth equal to it
+DEFAULT_DEPTH = 42
 
 
 class Kind(Enum):
@@ -37,8 +38,9 @@ class Kind(Enum):
 
 @dataclass(frozen=True)
 class Qos:
-    """The QoS an entity advertises (rmw enum numbers: reliability 1 reliable, 2 best effort;
-    durability 1 transient local, 2 volatile; history 1 keep last)."""
+    """The QoS an entity advertises: keep-last history of ``depth``, reliable or best effort,
+    volatile or transient local; deadline, lifespan and liveliness lease infinite, liveliness
+    automatic (what rclcpp's profiles resolve to)."""
 
     depth: int = 10
     reliable: bool = True
@@ -47,12 +49,19 @@ class Qos:
     lifespan_s: int | None = None
 
     def chunk(self) -> str:
-        """``<rel>:<dur>:<hist>,<depth>:<deadline s>,<ns>:<lifespan s>,<ns>:<liveliness>,<lease s>,<ns>``
-        with the defaults elided."""
-        rel = 1 if self.reliable else 2
-        dur = 1 if self.transient_local else 2
+        """The token's QoS chunk, ``<rel>:<dur>:<hist>,<depth>:<deadline s>,<ns>:<lifespan s>,<ns>:
+        <liveliness>,<lease s>,<ns>``, as rmw_zenoh's ``qos_to_keyexpr`` writes it: a field equal
+        to rmw_zenoh's default (reliable, volatile, keep last, depth 42, infinite durations,
+        automatic liveliness) is left empty; otherwise the rmw enum's number (reliability 2 best
+        effort, durability 1 transient local). ``keyexpr_to_qos`` reads an empty field as the
+        default, so both spellings mean the same profile, but this one is the one ROS tools
+        see from rmw_zenoh's own processes. A finite lifespan is whole seconds and 0 ns (the
+        infinite default's nanoseconds are not 0, so they are written)."""
+        rel = "" if self.reliable else "2"
+        dur = "1" if self.transient_local else ""
+        depth = "" if self.depth == DEFAULT_DEPTH else str(self.depth)
         lifespan = "," if self.lifespan_s is None else f"{self.lifespan_s},0"
-        return f"{rel}:{dur}:1,{self.depth}:,:{lifespan}:,,"
+        return f"{rel}:{dur}:,{depth}:,:{lifespan}:,,"
 
 
 #: QoS as the Gazebo TurtleBot3 and tf2 advertise them
@@ -139,22 +148,8 @@ class Node:
 
 
 def gid(token: str) -> bytes:
-    """A stable 16-byte GID for an entity (rmw_zenoh hashes its token too)."""
-    return hashlib.blake2b(token.encode(), digest_size=16).digest()
-
-
-_ATTACHMENT = struct.Struct("<qqB")
-
-
-def attachment(sequence: int, gid16: bytes, stamp_ns: int | None = None) -> bytes:
-    """The 33 bytes rmw_zenoh expects on every sample, query and reply."""
-    ts = time.time_ns() if stamp_ns is None else stamp_ns
-    return _ATTACHMENT.pack(sequence, ts, 16) + gid16
-
-
-def parse_attachment(raw: bytes) -> tuple[int, int, bytes]:
-    """(sequence, source timestamp ns, GID), or ValueError for anything but the 33-byte form."""
-    if len(raw) != 33 or raw[16] != 16:
-        raise ValueError(f"not an rmw_zenoh attachment ({len(raw)} bytes)")
-    seq, ts, _ = _ATTACHMENT.unpack_from(raw)
-    return seq, ts, bytes(raw[17:])
+    """The entity's 16-byte GID as rmw_zenoh makes it (``Entity::Entity`` in
+    ``src/detail/liveliness_utils.cpp``): XXH3-128 (seed 0) of the token's text, the low 64-bit
+    half then the high one, each little-endian, i.e. the 128-bit value little-endian. (xxhash's
+    ``digest()`` is the canonical big-endian form, the reverse of these bytes.)"""
+    return xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little")

@@ -190,8 +190,9 @@ class RosNavigation:
             if namespace not in self.robots or "*" in key or "$" in key:
                 query.drop()  # somebody looking around, or another daemon's robot
                 return
-            send = reply_sender(query, key, graph.gid(key))
-            call = Call(part.name(f"/{namespace}/{ACTION}"), None, response_type, self.store, send, self.outbox)
+            name = part.name(f"/{namespace}/{ACTION}")
+            send = reply_sender(query, key, graph.gid(key), self.p.legacy, name)
+            call = Call(name, None, response_type, self.store, send, self.outbox)
             payload = query.payload.to_bytes() if query.payload is not None else b""
             try:
                 if len(payload) > MAX_REQUEST_BYTES:
@@ -211,6 +212,7 @@ class RosNavigation:
         namespace = chunks[1]
         if namespace not in self.robots or chunks[4] not in self._goal_pose_hashes:
             return
+        self.p.legacy.check(sample.attachment, f"/{namespace}/goal_pose")
         payload = sample.payload.to_bytes()
         try:
             if len(payload) > MAX_REQUEST_BYTES:

@@ -122,6 +122,7 @@ class ParameterServer:
         self._store = typestore(p.distro)
         self._outbox = outbox
         self._answers = answers
+        self._legacy = p.legacy
         self.parameters = parameters or NodeParameters()
         self.malformed = 0
         handlers: dict[str, Callable[[Call], None]] = {
@@ -147,8 +148,9 @@ class ParameterServer:
             if "*" in key or "$" in key or not self._answers(path):
                 query.drop()  # somebody looking around, or another daemon's robot
                 return
-            call = Call(f"/{'/'.join(path)}/{suffix}", None, response_type, self._store,
-                        reply_sender(query, key, graph.gid(key)), self._outbox)  # fmt: skip
+            name = f"/{'/'.join(path)}/{suffix}"
+            send = reply_sender(query, key, graph.gid(key), self._legacy, name)
+            call = Call(name, None, response_type, self._store, send, self._outbox)
             payload = query.payload.to_bytes() if query.payload is not None else b""
             try:
                 if len(payload) > MAX_REQUEST_BYTES:

@@ -27,7 +27,8 @@ import zenoh
 import zenoh.ext
 
 from protocol import frames
-from simd.adapters.ros2 import graph, tf_cdr
+from simd.adapters.ros2 import attachment, graph, tf_cdr
+from simd.adapters.ros2.attachment import LegacyNotice
 from simd.adapters.ros2.graph import Kind, Node, Qos, Topic
 from simd.adapters.ros2.interfaces import CmdVel, Distro
 from simd.adapters.ros2.tf_layout import TfLayout
@@ -69,6 +70,8 @@ class Participant:
     imu_interest: Tally = field(default_factory=Tally)
     joints_interest: Tally = field(default_factory=Tally)
     tf_interest: Tally = field(default_factory=Tally)
+    #: says once per sender that an older rmw_zenoh reached the daemon (attachment.py)
+    legacy: LegacyNotice = field(default_factory=LegacyNotice)
     _ids: itertools.count[int] = field(default_factory=lambda: itertools.count(1))
 
     def __post_init__(self) -> None:
@@ -100,7 +103,7 @@ class _Attached:
     def put(self, payload: bytes, stamp_ns: int | None = None) -> None:
         """Send with the attachment; ``stamp_ns`` (wall clock) saves reading the clock per message."""
         self.sequence += 1
-        self.pub.put(payload, attachment=graph.attachment(self.sequence, self.gid, stamp_ns))
+        self.pub.put(payload, attachment=attachment.encode(self.sequence, self.gid, stamp_ns))
 
 
 class RosPublisher(_Attached):

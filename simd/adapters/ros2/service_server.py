@@ -1,9 +1,10 @@
 """ROS 2 services on rmw_zenoh's wire: a queryable per service, CDR in and out, attachments echoed.
 
-A ROS client ``get``s the service's key with the request's CDR and a 33-byte attachment
-(its sequence number and GID); the server replies on the same key with the response's CDR and
-an attachment carrying the same sequence number and GID, by which rclcpp matches the answer
-to the call. rclcpp never hands an error reply to the caller, so every refusal is an ordinary
+A ROS client ``get``s the service's key with the request's CDR and an attachment (its sequence
+number and GID); the server replies on the same key with the response's CDR and an attachment
+carrying the same sequence number and GID, by which rclcpp matches the answer to the call, in
+the format the request came in (attachment.py: an older rmw_zenoh's client is answered in
+its own). rclcpp never hands an error reply to the caller, so every refusal is an ordinary
 response (``success = false``, or a ``Result`` code, and a message). An ``SS`` liveliness token
 makes the service exist for ``ros2 service list`` and for a client's ``wait_for_service``.
 
@@ -29,7 +30,8 @@ from rosbags.interfaces import Nodetype
 from rosbags.typesys.store import Typestore
 
 from protocol.control import Request
-from simd.adapters.ros2 import graph
+from simd.adapters.ros2 import attachment, graph
+from simd.adapters.ros2.attachment import Attachment, LegacyNotice
 from simd.adapters.ros2.interfaces import typestore
 from simd.adapters.ros2.robot_ports import Participant
 from simd.adapters.ros2.shared_fleet import Answer, Ask
@@ -146,6 +148,7 @@ class ServiceServer:
         self.ask = ask
         self.outbox = outbox
         self._store = typestore(p.distro)
+        self._legacy = p.legacy
         self._entities: list[Any] = []
         self.malformed = 0
         for service in services:
@@ -164,7 +167,7 @@ class ServiceServer:
             if str(query.key_expr) != key:
                 query.drop()  # a wildcard: somebody looking, not calling
                 return
-            send = reply_sender(query, key, server_gid)
+            send = reply_sender(query, key, server_gid, self._legacy, service.name)
             payload = query.payload.to_bytes() if query.payload is not None else b""
             call = Call(service.name, None, response_type, store, send, self.outbox, self.ask)
             if len(payload) > MAX_REQUEST_BYTES:
@@ -192,26 +195,28 @@ class ServiceServer:
         undeclare_all(self._entities)
 
 
-def reply_sender(query: zenoh.Query, key: str, server_gid: bytes) -> Callable[[bytes], None]:
+def reply_sender(query: zenoh.Query, key: str, server_gid: bytes, legacy: LegacyNotice,
+                 name: str) -> Callable[[bytes], None]:  # fmt: skip
     """The one reply to a query, on ``key``, with the attachment rclcpp matches it by: the
-    request's sequence number and the client's GID (a caller without an attachment, zenoh's CLI
-    say, is answered all the same)."""
+    request's sequence number and the client's GID, in the request's format (a caller without
+    an attachment, zenoh's CLI say, is answered all the same). An older rmw_zenoh's request is
+    told to ``legacy`` (``name`` says what it called)."""
     try:
-        sequence, client_gid = _caller(query.attachment)
+        caller = _caller(query.attachment)
     except ValueError:
-        sequence, client_gid = 0, server_gid
+        caller = Attachment(0, 0, server_gid)
+    legacy.note(caller, name)
 
     def send(payload: bytes) -> None:
         try:
-            query.reply(key, payload, attachment=graph.attachment(sequence, client_gid))
+            query.reply(key, payload, attachment=attachment.echo(caller))
         finally:
             query.drop()
 
     return send
 
 
-def _caller(attachment: zenoh.ZBytes | None) -> tuple[int, bytes]:
-    if attachment is None:
+def _caller(raw: zenoh.ZBytes | None) -> Attachment:
+    if raw is None:
         raise ValueError("no attachment")
-    sequence, _, gid = graph.parse_attachment(attachment.to_bytes())
-    return sequence, gid
+    return attachment.decode(raw.to_bytes())
