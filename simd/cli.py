@@ -20,6 +20,7 @@ from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
 from protocol.ros_domain import domain_id
 from protocol.zenoh_config import add_zenoh_args, options_from_args, zenoh_error_text
+from simd.adapters.zenoh_entities import zenoh_too_old
 
 if TYPE_CHECKING:
     from protocol.navigation import NavigateRequest
@@ -241,6 +242,9 @@ def fail(message: str) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    too_old = zenoh_too_old()
+    if too_old is not None:
+        return fail(too_old)
     # zenoh's query callbacks need the GIL, which the simulation thread would otherwise hold
     # for up to 5 ms at a time; 1 ms keeps spawn replies prompt at the cost of a few switches.
     sys.setswitchinterval(0.001)
@@ -329,11 +333,8 @@ def main(argv: list[str] | None = None) -> int:
     ros_source = ""
     if args.ros2:  # first: with --ros-serve-router the fleet session below connects to it
         from protocol.zenoh_config import exposed_without_authentication
-        from simd.adapters.ros2.session import RosConfigError, session_config, zenoh_too_old
+        from simd.adapters.ros2.session import RosConfigError, session_config
 
-        too_old = zenoh_too_old()
-        if too_old is not None:
-            return fail(too_old)
         try:
             ros = session_config(args.ros_router, serve=args.ros_serve_router, mode=args.ros_mode, env=os.environ)
         except RosConfigError as e:

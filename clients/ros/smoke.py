@@ -11,7 +11,7 @@ ROS 2 tools a TurtleBot3 user would, each with a time limit:
 4. ``ros2 topic hz /TB3_1/odom`` for a few seconds: about 30 Hz;
 5. a teleop publish (``ros2 topic pub`` of TwistStamped, Twist on Humble), then the odometry
    again: the robot moved;
-6. ``ros2 param list``: a known gap (fleetsim's nodes have no parameter services);
+6. ``ros2 param list``: the daemon's nodes, with ``use_sim_time``;
 7. ``ros2 bag record`` for 5 s, then ``ros2 bag info``: messages of every topic.
 
 It prints a table (smoke_checks.py) with the versions it ran with, and the output of every

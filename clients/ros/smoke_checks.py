@@ -6,9 +6,7 @@ rosbag2's ``bag info``; Humble and Jazzy, from their sources) and gives a :class
 They are tested on outputs written by hand from those formats (tests/clients/data/ros_smoke/),
 not captured from a real ROS install; the first real run is the test of the formats.
 
-A verdict is PASS, FAIL, or GAP: a difference from Gazebo that docs/ros2.md already names (the
-daemon's nodes have no parameter services), so that a report shows it without calling it a
-regression.
+A verdict is PASS or FAIL.
 """
 
 from __future__ import annotations
@@ -19,7 +17,7 @@ from typing import Any
 
 import yaml
 
-PASS, FAIL, GAP = "PASS", "FAIL", "GAP"
+PASS, FAIL = "PASS", "FAIL"
 #: how far ``ros2 topic hz`` may read from the rate fleetsim publishes at (real time)
 HZ_TOLERANCE = 0.2
 
@@ -215,24 +213,33 @@ def check_teleop(publish: Outcome, before: Outcome, after: Outcome, ns: str, min
 
 
 def check_param_list(out: Outcome) -> Verdict:
-    """fleetsim's nodes have no parameter services (docs/ros2.md): Jazzy's ``ros2 param list``
-    says so per node after a 5 s wait, Humble's skips them. Either is the known gap; a hang
-    is a failure, parameters listed for them a pass."""
+    """The daemon's nodes serve rclcpp's parameter services (``use_sim_time`` true): ``ros2 param
+    list`` lists ``/fleetsim`` and ``/TB3_1/turtlebot3`` with it. Jazzy's says ``Wait for service
+    timed out ... for node`` for a node whose services it did not reach; Humble's skips it."""
     check = "ros2 param list"
     failed = _failed_run(check, out)
     if failed is not None:
         return failed
-    text = out.text
-    listed = re.findall(r"^(/fleetsim\S*|/\S+/turtlebot3):\s*$", out.stdout, re.M)
-    if listed:
-        return Verdict(check, PASS, f"parameters of {', '.join(listed)}", [out])
-    waited = re.findall(r"parameter services for node (?:NodeName\(.*?full_name='([^']+)'\)|(\S+))", text)
-    nodes = sorted({a or b for a, b in waited})
-    ours = [n for n in nodes if n.startswith("/fleetsim") or n.endswith("/turtlebot3")]
-    detail = "fleetsim's nodes have no parameter services (known, docs/ros2.md)"
-    if ours:
-        detail += f": timed out on {', '.join(ours)}"
-    return Verdict(check, GAP, detail, [out])
+    listed: dict[str, list[str]] = {}
+    node = None
+    for line in out.stdout.splitlines():
+        if re.match(r"^\S+:\s*$", line):
+            node = line.strip()[:-1]
+            listed[node] = []
+        elif node is not None and line.startswith(" ") and line.strip():
+            listed[node].append(line.strip())
+    ours = {n: p for n, p in listed.items() if n.startswith("/fleetsim") or n.endswith("/turtlebot3")}
+    waited = re.findall(r"parameter services for node (?:NodeName\(.*?full_name='([^']+)'\)|(\S+))", out.text)
+    names = {a or b for a, b in waited}
+    unreached = sorted(n for n in names if n.startswith("/fleetsim") or n.endswith("/turtlebot3"))
+    if unreached:
+        return Verdict(check, FAIL, f"timed out on {', '.join(unreached)}", [out])
+    if not ours:
+        return Verdict(check, FAIL, "no fleetsim node listed", [out])
+    without = [n for n, params in ours.items() if "use_sim_time" not in params]
+    if without:
+        return Verdict(check, FAIL, f"no use_sim_time on {', '.join(without)}", [out])
+    return Verdict(check, PASS, f"use_sim_time on {', '.join(sorted(ours))}", [out])
 
 
 # -- ros2 bag record, then ros2 bag info ------------------------------------------------------------
@@ -274,9 +281,8 @@ def table(verdicts: list[Verdict], header: list[str]) -> str:
     for i, v in enumerate(verdicts, 1):
         lines.append(f"| {i} | {v.check} | {v.status} | {v.detail.replace('|', '/')} |")
     passed = sum(v.status == PASS for v in verdicts)
-    gaps = sum(v.status == GAP for v in verdicts)
     failed = [v for v in verdicts if v.status == FAIL]
-    lines += ["", f"{passed} of {len(verdicts)} passed, {len(failed)} failed, {gaps} known gaps."]
+    lines += ["", f"{passed} of {len(verdicts)} passed, {len(failed)} failed."]
     for v in failed:
         lines += ["", f"<details><summary>{v.check}: output</summary>", "", "```"]
         for out in v.outcomes:

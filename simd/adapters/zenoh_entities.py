@@ -1,4 +1,5 @@
-"""Zenoh helpers that every adapter uses: knowing who listens, and letting go of entities."""
+"""Zenoh helpers that every adapter uses: knowing who listens, letting go of entities, and
+whether this eclipse-zenoh has what they use."""
 
 from __future__ import annotations
 
@@ -6,6 +7,40 @@ import threading
 from typing import Any
 
 import zenoh
+
+#: what simd uses of eclipse-zenoh that its first 1.x releases lack; 1.5.0 has all of it
+#: (zenoh-python's advanced pub/sub, #537, and matching listeners, #557)
+REQUIRED_FEATURES = (
+    ("zenoh.ext", "declare_advanced_publisher"),  # transient-local topics, as rmw_zenoh declares them
+    ("zenoh.ext", "CacheConfig"),
+    ("zenoh.ext", "MissDetectionConfig"),
+    ("zenoh.Publisher", "declare_matching_listener"),  # messages built only for topics somebody reads (Interest)
+)
+MINIMUM_ZENOH = "1.5.0"
+
+
+def missing_features() -> list[str]:
+    """The names simd uses that this eclipse-zenoh lacks (empty: it has them all)."""
+    import zenoh.ext
+
+    owners = {"zenoh.ext": zenoh.ext, "zenoh.Publisher": zenoh.Publisher}
+    return [f"{owner}.{name}" for owner, name in REQUIRED_FEATURES if not hasattr(owners[owner], name)]
+
+
+def zenoh_too_old() -> str | None:
+    """Why this eclipse-zenoh cannot run simd, in one line, or None if it can: checked before
+    anything starts, so an old install is one line and not an AttributeError mid-spawn."""
+    missing = missing_features()
+    if not missing:
+        return None
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        installed = version("eclipse-zenoh")
+    except PackageNotFoundError:
+        installed = "unknown"
+    return (f"simd needs eclipse-zenoh >= {MINIMUM_ZENOH} ({installed} is installed, without "
+            f"{', '.join(missing)}): pip install 'eclipse-zenoh>={MINIMUM_ZENOH},<2'")  # fmt: skip
 
 
 def undeclare_all(entities: list[Any]) -> None:

@@ -20,7 +20,7 @@ import yaml
 
 from clients.ros import cli, nav2_files, nav2_params, smoke, smoke_checks
 from clients.ros.nav2_params import Robot
-from clients.ros.smoke_checks import FAIL, GAP, PASS, Outcome
+from clients.ros.smoke_checks import FAIL, PASS, Outcome
 from simd.core.models import MODELS
 
 DATA = Path(__file__).parent / "data" / "ros_smoke"
@@ -244,13 +244,15 @@ def test_echo_hz_and_teleop() -> None:
     assert still.status == FAIL and "+0.000 m" in still.detail
 
 
-def test_param_list_is_the_known_gap_unless_it_hangs() -> None:
+def test_param_list_passes_when_the_daemons_nodes_list_use_sim_time() -> None:
     jazzy = smoke_checks.check_param_list(_out("param_list_jazzy.txt"))
-    assert jazzy.status == GAP and jazzy.detail.endswith("timed out on /TB3_1/turtlebot3, /fleetsim")
+    assert jazzy.status == PASS and jazzy.detail == "use_sim_time on /TB3_1/turtlebot3, /fleetsim"
+    timeout = smoke_checks.check_param_list(_out("param_list_timeout.txt"))
+    assert timeout.status == FAIL and timeout.detail == "timed out on /TB3_1/turtlebot3, /fleetsim"
     humble = smoke_checks.check_param_list(_out("param_list_humble.txt"))
-    assert humble.status == GAP
-    listed = smoke_checks.check_param_list(Outcome(["ros2"], "/fleetsim:\n  use_sim_time\n", "", 0))
-    assert listed.status == PASS
+    assert humble.status == FAIL and humble.detail == "no fleetsim node listed"
+    other = smoke_checks.check_param_list(Outcome(["ros2"], "/fleetsim:\n  qos_overrides\n", "", 0))
+    assert other.status == FAIL and other.detail == "no use_sim_time on /fleetsim"
     assert smoke_checks.check_param_list(Outcome(["ros2"], "", "", None, True)).status == FAIL
 
 
@@ -296,7 +298,7 @@ class FakeRos:
 def test_the_checks_in_order_and_the_report() -> None:
     ros = FakeRos()
     verdicts = smoke.checks(ros, "jazzy", "/tmp/bag")
-    assert [v.status for v in verdicts] == [PASS, PASS, PASS, PASS, PASS, GAP, PASS]
+    assert [v.status for v in verdicts] == [PASS] * 7
     verbs = [" ".join(c[1:3]) for c in ros.ran]
     assert verbs == ["service call", "topic list", "topic echo", "topic hz", "topic pub", "topic echo",
                      "param list", "bag record", "bag info"]  # fmt: skip
@@ -306,8 +308,8 @@ def test_the_checks_in_order_and_the_report() -> None:
     s = smoke.Setup("jazzy", 3, "tcp/localhost:7447", True, ["simd"])
     report = smoke_checks.table(verdicts, smoke.header(ros, s))
     assert "rmw_zenoh_cpp 0.2.9" in report and "ROS_DOMAIN_ID 3" in report and "simd as the router" in report
-    assert "| 6 | ros2 param list | GAP |" in report
-    assert report.rstrip().endswith("6 of 7 passed, 0 failed, 1 known gaps.")
+    assert "| 6 | ros2 param list | PASS | use_sim_time on /TB3_1/turtlebot3, /fleetsim |" in report
+    assert report.rstrip().endswith("7 of 7 passed, 0 failed.")
     assert smoke.simd_args(s, "tcp/127.0.0.1:9")[-1] == "--ros-serve-router"
 
 

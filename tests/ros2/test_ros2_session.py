@@ -5,6 +5,8 @@ ZENOH_CONFIG_OVERRIDE read as rmw_zenoh's zenoh_config.cpp reads them."""
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +14,7 @@ import pytest
 import zenoh
 import zenoh.ext
 
+from simd.adapters import zenoh_entities
 from simd.adapters.ros2 import session
 from simd.adapters.ros2.session import RosConfigError, session_config
 
@@ -115,15 +118,37 @@ def test_a_bad_config_file_is_refused_with_one_line(tmp_path: Path) -> None:
         assert "\n" not in str(e.value)
 
 
-def test_this_zenoh_has_what_ros2_needs() -> None:
-    assert session.missing_features() == []
-    assert session.zenoh_too_old() is None
+def test_this_zenoh_has_what_simd_needs() -> None:
+    assert zenoh_entities.missing_features() == []
+    assert zenoh_entities.zenoh_too_old() is None
 
 
 def test_an_older_zenoh_is_named_with_what_it_lacks(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delattr(zenoh.ext, "declare_advanced_publisher")
     # zenoh's classes are immutable: a name it never had stands for a method an older one lacks
-    monkeypatch.setattr(session, "REQUIRED_FEATURES", (*session.REQUIRED_FEATURES, ("zenoh.Publisher", "nope")))
-    why = session.zenoh_too_old()
-    assert why is not None and why.startswith("--ros2 needs eclipse-zenoh >= 1.5.0")
+    features = (*zenoh_entities.REQUIRED_FEATURES, ("zenoh.Publisher", "nope"))
+    monkeypatch.setattr(zenoh_entities, "REQUIRED_FEATURES", features)
+    why = zenoh_entities.zenoh_too_old()
+    assert why is not None and why.startswith("simd needs eclipse-zenoh >= 1.5.0")
     assert "without zenoh.ext.declare_advanced_publisher, zenoh.Publisher.nope)" in why
+
+
+#: simd in its own process, on a zenoh whose zenoh.ext lacks the advanced publisher (as 1.0-1.4's)
+OLD_ZENOH_SIMD = """
+import sys, zenoh.ext
+del zenoh.ext.declare_advanced_publisher
+from simd.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+@pytest.mark.parametrize("flags", [[], ["--ros2"]])
+def test_simd_on_an_older_zenoh_stops_with_one_line(flags: list[str]) -> None:
+    """Before it opens a session or binds a port, with or without --ros2 (the fleet topics'
+    matching listeners need 1.5.0 too)."""
+    done = subprocess.run([sys.executable, "-c", OLD_ZENOH_SIMD, *flags],
+                          capture_output=True, text=True, timeout=60)  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("simd: error: simd needs eclipse-zenoh >= 1.5.0"), lines
+    assert "declare_advanced_publisher" in lines[0]

@@ -55,15 +55,6 @@ RMW_ZENOH_SETTINGS = {
     "transport/link/tx/keep_alive": "2",
 }
 
-#: what ``--ros2`` uses of eclipse-zenoh that its first 1.x releases lack; 1.5.0 has all of it
-#: (zenoh-python's advanced pub/sub, #537, and matching listeners, #557)
-REQUIRED_FEATURES = (
-    ("zenoh.ext", "declare_advanced_publisher"),  # transient-local topics, as rmw_zenoh declares them
-    ("zenoh.ext", "CacheConfig"),
-    ("zenoh.ext", "MissDetectionConfig"),
-    ("zenoh.Publisher", "declare_matching_listener"),  # messages built only for topics somebody reads
-)
-MINIMUM_ZENOH = "1.5.0"
 
 
 class RosConfigError(ValueError):
@@ -154,29 +145,6 @@ def apply_overrides(conf: zenoh.Config, overrides: str) -> list[str]:
             raise RosConfigError(f"{CONFIG_OVERRIDE}: cannot set {key} to {value}: {_one_line(e)}") from e
         keys.append(key)
     return keys
-
-
-def missing_features() -> list[str]:
-    """The names ``--ros2`` uses that this eclipse-zenoh lacks (empty: it has them all)."""
-    import zenoh.ext
-
-    owners = {"zenoh.ext": zenoh.ext, "zenoh.Publisher": zenoh.Publisher}
-    return [f"{owner}.{name}" for owner, name in REQUIRED_FEATURES if not hasattr(owners[owner], name)]
-
-
-def zenoh_too_old() -> str | None:
-    """Why this eclipse-zenoh cannot serve ROS 2, in one line, or None if it can."""
-    missing = missing_features()
-    if not missing:
-        return None
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        installed = version("eclipse-zenoh")
-    except PackageNotFoundError:
-        installed = "unknown"
-    return (f"--ros2 needs eclipse-zenoh >= {MINIMUM_ZENOH} ({installed} is installed, without "
-            f"{', '.join(missing)}): pip install 'eclipse-zenoh>={MINIMUM_ZENOH},<2'")  # fmt: skip
 
 
 def _from_file(variable: str, path: str) -> zenoh.Config:
