@@ -3,20 +3,40 @@ whether this eclipse-zenoh has what they use."""
 
 from __future__ import annotations
 
+import re
 import threading
 from typing import Any
 
 import zenoh
 
-#: what simd uses of eclipse-zenoh that its first 1.x releases lack; 1.5.0 has all of it
-#: (zenoh-python's advanced pub/sub, #537, and matching listeners, #557)
+#: what simd uses of eclipse-zenoh that its first 1.x releases lack (1.4.0's wheel has none of
+#: them; zenoh-python's advanced pub/sub, #537, and matching listeners, #557, came in 1.5.0)
 REQUIRED_FEATURES = (
     ("zenoh.ext", "declare_advanced_publisher"),  # transient-local topics, as rmw_zenoh declares them
     ("zenoh.ext", "CacheConfig"),
     ("zenoh.ext", "MissDetectionConfig"),
     ("zenoh.Publisher", "declare_matching_listener"),  # messages built only for topics somebody reads (Interest)
 )
-MINIMUM_ZENOH = "1.5.0"
+#: the first release that also works: with 1.5.0 and 1.5.1, samples go missing through a router
+#: (tests/ros2/test_record_ros.py recorded 9 of 60 odometries; after a daemon of a shared fleet
+#: died, the /clock of the one that took over never reached a ROS subscriber in client mode,
+#: tests/scaleout/test_ros2_shared.py); 1.6.1 passes both (there is no 1.6.0 for Python)
+MINIMUM_ZENOH = "1.6.1"
+
+
+def _release(text: str) -> tuple[int, ...]:
+    """``1.6.1`` -> (1, 6, 1): the leading digits of each part (``1.7.0rc1`` -> (1, 7, 0))."""
+    return tuple(int(m.group()) if (m := re.match(r"\d+", part)) else 0 for part in text.split(".")[:3])
+
+
+def installed_zenoh() -> str | None:
+    """The installed eclipse-zenoh's version, or None when the package metadata is missing."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("eclipse-zenoh")
+    except PackageNotFoundError:
+        return None
 
 
 def missing_features() -> list[str]:
@@ -29,18 +49,16 @@ def missing_features() -> list[str]:
 
 def zenoh_too_old() -> str | None:
     """Why this eclipse-zenoh cannot run simd, in one line, or None if it can: checked before
-    anything starts, so an old install is one line and not an AttributeError mid-spawn."""
+    anything starts, so an old install is one line and not an AttributeError mid-spawn or
+    samples that silently go missing."""
     missing = missing_features()
-    if not missing:
+    installed = installed_zenoh()
+    old = installed is not None and _release(installed) < _release(MINIMUM_ZENOH)
+    if not missing and not old:
         return None
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        installed = version("eclipse-zenoh")
-    except PackageNotFoundError:
-        installed = "unknown"
-    return (f"simd needs eclipse-zenoh >= {MINIMUM_ZENOH} ({installed} is installed, without "
-            f"{', '.join(missing)}): pip install 'eclipse-zenoh>={MINIMUM_ZENOH},<2'")  # fmt: skip
+    why = f"without {', '.join(missing)}" if missing else "which loses samples through a router"
+    return (f"simd needs eclipse-zenoh >= {MINIMUM_ZENOH} ({installed or 'unknown'} is installed, {why}): "
+            f"pip install 'eclipse-zenoh>={MINIMUM_ZENOH},<2'")  # fmt: skip
 
 
 def undeclare_all(entities: list[Any]) -> None:

@@ -129,8 +129,23 @@ def test_an_older_zenoh_is_named_with_what_it_lacks(monkeypatch: pytest.MonkeyPa
     features = (*zenoh_entities.REQUIRED_FEATURES, ("zenoh.Publisher", "nope"))
     monkeypatch.setattr(zenoh_entities, "REQUIRED_FEATURES", features)
     why = zenoh_entities.zenoh_too_old()
-    assert why is not None and why.startswith("simd needs eclipse-zenoh >= 1.5.0")
+    assert why is not None and why.startswith("simd needs eclipse-zenoh >= 1.6.1")
     assert "without zenoh.ext.declare_advanced_publisher, zenoh.Publisher.nope)" in why
+
+
+@pytest.mark.parametrize(("installed", "refused"), [("1.5.1", True), ("1.5.0", True), ("1.6.1", False),
+                                                   ("1.10.2", False), ("2.0.0rc1", False), (None, False)])  # fmt: skip
+def test_a_zenoh_with_every_name_but_older_than_the_floor_is_refused(
+    monkeypatch: pytest.MonkeyPatch, installed: str | None, refused: bool
+) -> None:
+    """1.5.x has the names but loses samples through a router (MINIMUM_ZENOH says where it was seen)."""
+    monkeypatch.setattr(zenoh_entities, "installed_zenoh", lambda: installed)
+    why = zenoh_entities.zenoh_too_old()
+    if refused:
+        assert why == (f"simd needs eclipse-zenoh >= 1.6.1 ({installed} is installed, which loses samples through "
+                       "a router): pip install 'eclipse-zenoh>=1.6.1,<2'")  # fmt: skip
+    else:
+        assert why is None
 
 
 #: simd in its own process, on a zenoh whose zenoh.ext lacks the advanced publisher (as 1.0-1.4's)
@@ -150,5 +165,5 @@ def test_simd_on_an_older_zenoh_stops_with_one_line(flags: list[str]) -> None:
                           capture_output=True, text=True, timeout=60)  # fmt: skip
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("simd: error: simd needs eclipse-zenoh >= 1.5.0"), lines
+    assert len(lines) == 1 and lines[0].startswith("simd: error: simd needs eclipse-zenoh >= 1.6.1"), lines
     assert "declare_advanced_publisher" in lines[0]
