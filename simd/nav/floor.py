@@ -213,7 +213,9 @@ class Floor:
     def way(self, robot: NavRobot, x: float, y: float) -> list[tuple[float, float]]:
         """Where the robot may drive now: along the points of the cells it holds ahead, from
         the point of that line nearest it, and in its goal's cell on to the goal point itself
-        (when the cells its body needs there are free); in the open, cut straight where clear."""
+        (when the cells its body needs there are free); in the open, cut straight where clear.
+        A robot with nowhere to go settles into its cell's centre only while its body reaches
+        into a neighbour: a few centimetres off the centre are not worth turning round for."""
         traffic = self.traffic
         g = self.graph
         m = self._m(robot)
@@ -231,10 +233,11 @@ class Floor:
             if traffic.hold_free(m, traffic.box(gx, gy, m.radius)):
                 pts.append((gx, gy))
             elif not way:
-                pts.append(g.centre(last))
+                if len(m.box) > 1:
+                    pts.append(g.centre(last))  # settle into its cell, off its neighbours
                 robot.held_up_at_goal = True
-        elif not way and m.cell != FREE:
-            pts.append(g.centre(m.cell))  # settle where it stands in its cell
+        elif not way and m.cell != FREE and len(m.box) > 1:
+            pts.append(g.centre(m.cell))  # settle into its cell, off its neighbours
         if self.costmap is not None and len(pts) > 2:
             pts = self._pulled(m, model, pts)
         return pts

@@ -4,7 +4,8 @@ command that takes it on.
 The control law is a regulated pure pursuit, as Nav2's default controller for diff-drive
 robots: steer for a point ``LOOKAHEAD_M`` further along the path; turn in place first when
 that point is more than ``ROTATE_ABOVE_RAD`` off the heading (a TurtleBot3 turns on the spot,
-and a path through a one-cell aisle has right angles); slow down in tight curves and so as to
+and a path through a one-cell aisle has right angles), or back up to it when it is a few
+centimetres behind; slow down in tight curves and so as to
 stop, at the wheels' acceleration, before the end of what the robot may drive (the goal, the
 cells its traffic claims reach, or the nearest obstacle its lidar sees). Commands stay within
 the model's limits; the simulation's diff-drive then ramps the wheels at their acceleration.
@@ -32,6 +33,8 @@ PLAN_DECEL = 0.5
 PLAN_ANGULAR_DECEL = 4.0
 #: pure pursuit's regulation: below this turning radius the speed is scaled down
 REGULATE_RADIUS_M = 0.25
+#: an aim behind the robot and nearer than this is backed into, not turned round for
+BACK_WITHIN_M = 0.1
 
 
 def along(px: F64, py: F64, lookahead: float) -> tuple[F64, F64, F64]:
@@ -68,6 +71,20 @@ class Limits:
     max_w: F64
 
 
+def _arc(alpha: F64, dist: F64, room: F64, limits: Limits) -> tuple[F64, F64]:
+    """Speed and turn rate along pure pursuit's arc to a point ``dist`` away and ``alpha`` off
+    the direction of travel: the top speed, regulated in tight curves, and so as to stop within
+    the room; slower still where the wheels could not turn that curve at speed."""
+    curvature = 2.0 * np.sin(alpha) / np.maximum(dist, 1e-6)
+    radius = 1.0 / np.maximum(np.abs(curvature), 1e-9)
+    v = limits.max_v * np.minimum(1.0, radius / REGULATE_RADIUS_M)
+    v = np.minimum(v, np.sqrt(2.0 * PLAN_DECEL * np.maximum(room, 0.0)))
+    w = v * curvature
+    over = np.abs(w) > limits.max_w
+    scale = np.where(over, limits.max_w / np.maximum(np.abs(w), 1e-9), 1.0)
+    return v * scale, w * scale
+
+
 def pursue(
     x: F64,
     y: F64,
@@ -78,23 +95,19 @@ def pursue(
     limits: Limits,
 ) -> tuple[F64, F64]:
     """The (linear, angular) command of each robot steering for (aim_x, aim_y) with ``room``
-    metres it may still drive along its path (0: stop, it may still turn to face the aim)."""
+    metres it may still drive along its path (0: stop, it may still turn to face the aim).
+    An aim a few centimetres behind the robot (settling into its cell) is backed into: turning
+    round for it and back again cost a TurtleBot3 two seconds each time."""
     dx, dy = aim_x - x, aim_y - y
     dist = np.hypot(dx, dy)
     alpha = wrap(np.arctan2(dy, dx) - yaw)
     alpha = np.where(dist > 1e-6, alpha, 0.0)
-    turn_in_place = np.abs(alpha) > ROTATE_ABOVE_RAD
-    # speed: the top speed, regulated in tight curves, and so as to stop within the room
-    curvature = 2.0 * np.sin(alpha) / np.maximum(dist, 1e-6)
-    radius = 1.0 / np.maximum(np.abs(curvature), 1e-9)
-    v = limits.max_v * np.minimum(1.0, radius / REGULATE_RADIUS_M)
-    v = np.minimum(v, np.sqrt(2.0 * PLAN_DECEL * np.maximum(room, 0.0)))
-    v = np.where(turn_in_place | (room <= 1e-3), 0.0, v)
-    w = v * curvature
-    # a curve the wheels cannot turn at this speed: slow down to keep the curvature
-    over = np.abs(w) > limits.max_w
-    scale = np.where(over, limits.max_w / np.maximum(np.abs(w), 1e-9), 1.0)
-    v, w = v * scale, w * scale
+    backing = (dist < BACK_WITHIN_M) & (np.abs(alpha) > np.pi / 2) & (room > 1e-3)
+    turn_in_place = (np.abs(alpha) > ROTATE_ABOVE_RAD) & ~backing
+    v, w = _arc(np.where(backing, wrap(alpha + np.pi), alpha), dist, room, limits)
+    v = np.where(backing, -v, v)
+    still = turn_in_place | (room <= 1e-3)
+    v, w = np.where(still, 0.0, v), np.where(still, 0.0, w)
     spin = np.sign(alpha) * np.minimum(limits.max_w, np.sqrt(2.0 * PLAN_ANGULAR_DECEL * np.abs(alpha)))
     w = np.where(turn_in_place, spin, w)
     # standing still (no room) but not yet facing the aim: face it, to be ready

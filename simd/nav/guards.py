@@ -35,10 +35,11 @@ def would_crowd(
     """Whether each robot's body, somewhere along the way it goes before it could stop
     again (one control period at the new speed, plus braking from the speed it has now),
     would reach into cells another robot holds: a last guard under the floor's rules."""
-    horizon = v * GUARD_S + v_now * GUARD_S + v_now * v_now / (2.0 * GUARD_DECEL)
+    horizon = np.abs(v) * GUARD_S + v_now * GUARD_S + v_now * v_now / (2.0 * GUARD_DECEL)
     out = np.zeros(len(driven), dtype=bool)
-    for k in np.flatnonzero(v > 0).tolist():
-        c, s = math.cos(yaw[k]), math.sin(yaw[k])
+    for k in np.flatnonzero(v != 0).tolist():
+        ahead = 1.0 if v[k] > 0 else -1.0  # a robot backing up is walked backwards
+        c, s = ahead * math.cos(yaw[k]), ahead * math.sin(yaw[k])
         for d in np.arange(GUARD_STEP_M, float(horizon[k]) + GUARD_STEP_M, GUARD_STEP_M).tolist():
             if floor.intrudes(driven[k], float(x[k] + d * c), float(y[k] + d * s)):
                 out[k] = True
@@ -49,11 +50,11 @@ def would_crowd(
 def too_close(
     driven: list[NavRobot], rows: I64, table: RobotTable, x: F64, y: F64, yaw: F64, v: F64
 ) -> npt.NDArray[np.bool_]:
-    """Whether each robot, GUARD_S ahead at its speed, would come closer to another robot
+    """Whether each robot, GUARD_S on at its speed (forwards or backwards), would come closer to another robot
     than their two circles with margins allow: the last guard, on the true poses, whatever
     the floor's cells say (a robot that strayed, one pushed, one driven by teleop)."""
     out = np.zeros(len(driven), dtype=bool)
-    moving = np.flatnonzero(v > 0)
+    moving = np.flatnonzero(v != 0)
     if len(moving) == 0 or len(table.x) < 2:
         return out
     ax, ay = table.x, table.y
