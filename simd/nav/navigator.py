@@ -52,7 +52,7 @@ from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import cell_size_for
 from simd.nav.costmap import Costmap, Grid
 from simd.nav.floor import Floor
-from simd.nav.follow import LOOKAHEAD_M, Limits, along, pursue, turn_to, wrap
+from simd.nav.follow import BACK_WITHIN_M, LOOKAHEAD_M, Limits, along, pursue, turn_to, wrap
 from simd.nav.guards import too_close, would_crowd
 from simd.nav.lidar_guard import LOOK_AHEAD_M, LidarGuard
 from simd.nav.report import NavEvents, goal_pose, path_message, pose, summary_row
@@ -474,15 +474,16 @@ class Navigator:
         limits = Limits(np.array([r.model.max_linear_velocity for r in driven]),
                         np.array([r.model.max_angular_velocity for r in driven]))  # fmt: skip
         room = np.minimum(room, lidar_room)
-        v, w = pursue(x, y, yaw, aim_x, aim_y, room, limits)
+        back = BACK_WITHIN_M if floor.costmap is not None else 0.0  # (in lanes robots turn)
+        v, w = pursue(x, y, yaw, aim_x, aim_y, room, limits, back)
         v_now = np.abs(table.vx[rows])
         crowd = would_crowd(self.floor, driven, x, y, yaw, v, v_now)
         if crowd.any():  # cutting across would touch another's cells: by the way's first point
             ks = np.flatnonzero(crowd)
             first = np.array([_first_step(ways[j]) for j in ks.tolist()])
             sub = Limits(limits.max_v[ks], limits.max_w[ks])
-            dist = np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks])
-            v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], np.minimum(room[ks], dist), sub)
+            dist = np.minimum(room[ks], np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks]))
+            v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], dist, sub, back)
             still = would_crowd(self.floor, driven, x, y, yaw, v, v_now)
             if still.any():  # even that arc would: stop, and turn on the spot to face the first point
                 js = np.flatnonzero(still)

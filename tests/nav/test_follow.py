@@ -14,13 +14,15 @@ BURGER = MODELS["burger"]
 LIMITS = Limits(np.array([BURGER.max_linear_velocity]), np.array([BURGER.max_angular_velocity]))
 
 
-def command(bearing_deg: float, dist: float, room: float, yaw: float = 0.3) -> tuple[float, float]:
+def command(
+    bearing_deg: float, dist: float, room: float, yaw: float = 0.3, back: float = BACK_WITHIN_M
+) -> tuple[float, float]:
     """The command of a burger at the origin, heading ``yaw``, for an aim ``dist`` away at
-    ``bearing_deg`` off its heading."""
+    ``bearing_deg`` off its heading (on an open floor, unless ``back`` is 0: in lanes)."""
     a = yaw + math.radians(bearing_deg)
     one = np.array([0.0])
     v, w = pursue(one, one, np.array([yaw]), np.array([dist * math.cos(a)]), np.array([dist * math.sin(a)]),
-                  np.array([room]), LIMITS)  # fmt: skip
+                  np.array([room]), LIMITS, back)  # fmt: skip
     return float(v[0]), float(w[0])
 
 
@@ -43,6 +45,11 @@ def test_an_aim_centimetres_behind_is_backed_into_not_turned_round_for(bearing: 
 def test_an_aim_further_behind_is_turned_to_on_the_spot() -> None:
     v, w = command(150.0, BACK_WITHIN_M + 0.1, 1.0)
     assert v == 0.0 and w > 0.5  # it turns left, towards it, before it drives
+
+
+def test_in_lanes_robots_turn_rather_than_back_up() -> None:
+    v, w = command(150.0, 0.05, 0.05, back=0.0)
+    assert v == 0.0 and w > 0.5
 
 
 def test_no_room_no_motion_but_it_faces_the_aim() -> None:
