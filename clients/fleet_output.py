@@ -124,7 +124,7 @@ def describe_clock(c: Clock) -> str:
     # what a daemon older than these fields does not say is left out (they decode as 0)
     if c.falling_behind:
         line += f", falling behind ({c.behind_s:.1f} s of sim time behind the target)"
-    elif c.behind_s >= c.dt:
+    elif c.behind_s >= 0.05:  # what rounds to 0.0 s is not worth a word
         line += f", {c.behind_s:.1f} s of sim time behind the target"
     if c.capacity_robots:
         line += (

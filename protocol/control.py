@@ -259,8 +259,9 @@ class Clock(msgspec.Struct, kw_only=True):
     #: Whether the daemon is falling behind its target now: set when the measured factor drops
     #: below 0.9 of the target, cleared when it is back above 0.97 of it (or time stops).
     falling_behind: bool = False
-    #: Wall seconds a tick of the robots there now takes the simulation thread (moving
-    #: average; 0: not measured yet, and always 0 in a step's reply, which stays deterministic).
+    #: CPU seconds the daemon spends on a tick of the robots there now, all its threads
+    #: (simulation, publishing, zenoh; moving average; 0: not measured yet, and always 0 in a
+    #: step's reply, which stays deterministic).
     tick_s: float = 0.0
     #: About how many robots like these the daemon can keep in real time on this machine now,
     #: from its measured tick cost (0: not known yet; 0 in a step's reply too).

@@ -2,12 +2,15 @@
 
 A simulator meets machines too small for its fleet; the user should learn the limit from the
 daemon (``fleet clock``, the refusal of a spawn beyond ``--max-robots``, the warning when it
-falls behind) before guessing it from a frozen viewer. A tick's wall time is close to a fixed
-part (the loop, the clock, the adapters' bookkeeping) plus a part per robot (physics, lidar,
-encoding its messages), so the daemon keeps both as moving averages: the fixed part from the
-ticks it runs without robots (a daemon starts empty), the part per robot from every other
-tick, net of the fixed part. The estimate is for robots like the ones it runs now, on this
-machine, under today's load: a measurement, not a promise.
+falls behind) before guessing it from a frozen viewer. What a tick costs is the CPU time the
+whole daemon spends on it, not the simulation thread's time alone: the outbox encoding the
+tick's messages and zenoh sending them take more than the physics, and compete with it. That
+is close to a fixed part (the loop, the clock, zenoh's own upkeep) plus a part per robot
+(physics, lidar, encoding and sending its messages), so the daemon keeps both as moving
+averages: the fixed part from the ticks it runs without robots (a daemon starts empty), the
+part per robot from every other tick, net of the fixed part. The estimate is for robots like
+the ones it runs now, on this machine, under today's load (counting zenoh's threads, which
+may run on another core, errs on the side of fewer robots): a measurement, not a promise.
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ WARM_TICKS = 10
 
 
 class TickCost:
-    """Moving averages of the wall time of a tick (see the module docstring)."""
+    """Moving averages of the CPU time of a tick (see the module docstring)."""
 
     def __init__(self) -> None:
         self.fixed_s: float | None = None  # a tick without robots
@@ -32,7 +35,7 @@ class TickCost:
         self._measured = 0  # ticks with robots
 
     def record(self, robots: int, seconds: float) -> None:
-        """One tick of ``robots`` robots took ``seconds`` of wall time."""
+        """One tick of ``robots`` robots cost ``seconds`` of CPU time."""
         if robots == 0:
             self.fixed_s = seconds if self.fixed_s is None else self.fixed_s + ALPHA * (seconds - self.fixed_s)
             return

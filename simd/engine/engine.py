@@ -159,6 +159,7 @@ class Engine:
         lockstep: bool = False,
         paused: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        cpu_clock: Callable[[], float] = time.process_time,
         saver: Saver | None = None,
         navigator: Navigator | None = None,
     ) -> None:
@@ -180,6 +181,8 @@ class Engine:
         self._pacer = Pacer(sim.config.dt, rtf)
         self._lag = LagWatch()
         self._cost = TickCost()
+        self._cpu = cpu_clock  # the whole process's CPU time: the cost of a tick, publishing included
+        self._cpu_mark: float | None = None  # at the end of the last tick while time runs on
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
         self._models: tuple[list[str] | None, list[str]] = (None, [])  # (namespaces, their models)
@@ -293,11 +296,21 @@ class Engine:
             if self._saver is not None:
                 self._saver.save_now(capture(self.sim, self._goals()))
 
+    def _tick_cost(self, robots: int) -> None:
+        """What the daemon spent since the last tick, all its threads (the outbox encoding and
+        zenoh sending this tick's messages take more than the physics): the tick's cost, while
+        time runs on (the first tick after time stood still would count the idle wait)."""
+        now = self._cpu()
+        if self._cpu_mark is not None:
+            self._cost.record(robots, now - self._cpu_mark)
+        self._cpu_mark = now
+
     def _start_time(self, now: float) -> None:
         """Time starts running now (the start, a resume, a reset): the first tick is due a
         period from now, and the factor is measured from here."""
         self._pacer.start(now)
         self._rtf.restart(now, self.sim.time)
+        self._cpu_mark = None
 
     def _load(self) -> str:
         """What the warning of a loop falling behind says of its load."""
@@ -346,7 +359,6 @@ class Engine:
         (unless a step asked for no publishing: then no adapter hears of the tick)."""
         sim = self.sim
         nav = self.navigator
-        began = self._wall()
         commands = self._gather_commands()
         if nav is not None:  # an idle teleop's zeros never stop a robot on its way
             commands = nav.filter_commands(commands, sim.time)
@@ -377,7 +389,7 @@ class Engine:
                 a.on_tick(snap)
             if snap.tick % CLOCK_EVERY == 0:
                 self._announce_clock()
-        self._cost.record(len(snap.namespaces), self._wall() - began)
+        self._tick_cost(len(snap.namespaces))
         return snap
 
     def _own_robots(self) -> OwnRobots:
@@ -461,6 +473,7 @@ class Engine:
     def _pause(self, req: PauseRequest, reply: Reply) -> Result:
         self._cancel_steps()
         self.paused = True
+        self._cpu_mark = None
         self._lag.stopped("paused")
         self._announce_clock()
         return self.clock()
@@ -558,6 +571,7 @@ class Engine:
                 break
         if job.ran >= job.request.ticks:
             self._steps.popleft()
+            self._cpu_mark = None  # between steps the daemon waits for the next
             _send(job.reply, self._step_result(job, cancelled=False))
 
     def _cancel_steps(self) -> None:

@@ -128,7 +128,7 @@ def test_the_tick_cost_gives_the_robots_that_fit_in_real_time() -> None:
 def test_the_clock_and_a_refused_spawn_say_the_capacity() -> None:
     wall = FakeWall()
     sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=2))
-    e = Engine(sim, lockstep=True, clock=wall)
+    e = Engine(sim, lockstep=True, clock=wall, cpu_clock=wall)
     r = Recorder()
     per_tick = [0.001]
 
