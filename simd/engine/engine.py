@@ -437,6 +437,10 @@ class Engine:
         self._changed()
         log.info("spawned %s (%s) at (%.3f, %.3f, %.3f) ns=%s", robot.name, robot.model.name,
                  state.x, state.y, state.yaw, robot.namespace)  # fmt: skip
+        cap = self.capacity()
+        if cap and len(self.sim) == cap + 1:  # this spawn crossed it: said before it bites
+            log.warning("%d robots: more than the about %d like these this machine keeps in real time (measured); "
+                        "expect the simulation to fall behind", len(self.sim), cap)  # fmt: skip
         return state
 
     def _delete(self, req: DeleteRequest, reply: Reply) -> Result:

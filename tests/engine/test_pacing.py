@@ -125,35 +125,54 @@ def test_the_tick_cost_gives_the_robots_that_fit_in_real_time() -> None:
     assert cost.capacity(DT) == int((DT - 0.001) / 0.0001)
 
 
-def test_the_clock_and_a_refused_spawn_say_the_capacity() -> None:
+def test_the_clock_a_spawn_that_crosses_it_and_a_refused_spawn_say_the_capacity(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.WARNING, logger="simd.engine.engine")
     wall = FakeWall()
     sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=2))
     e = Engine(sim, lockstep=True, clock=wall, cpu_clock=wall)
     r = Recorder()
-    per_tick = [0.001]
+    per_tick = [0.001]  # the loop alone: 1 ms
 
-    def costs(snapshot: TickSnapshot) -> None:  # each tick takes (fake) wall time
+    def costs(snapshot: TickSnapshot) -> None:  # each tick takes (fake) time
         wall.now += per_tick[0]
 
     r.on_tick = costs  # type: ignore[method-assign]
     e.attach(r)
-    for _ in range(20):
-        e.tick()
-    for i, name in enumerate(("a", "b")):
-        e.submit(control.SpawnRequest(name=name, x=float(i), y=0.0), r.reply(name))
-    e.serve_pending()
-    per_tick[0] = 0.003  # 1 ms for the loop, 1 ms for each of the two robots
-    for _ in range(20):
-        e.tick()
+
+    def spawn(name: str, x: float) -> object:
+        e.submit(control.SpawnRequest(name=name, x=x, y=0.0), r.reply(name))
+        e.serve_pending()
+        return dict(r.log)[name]
+
+    def run(ticks: int) -> None:
+        for _ in range(ticks):
+            e.tick()
+
+    run(20)
+    spawn("a", 0.0)
+    per_tick[0] = 0.001 + 0.02  # 20 ms a robot: one fits in a 33 ms tick, two do not
+    run(20)
     clock = e.clock()
-    assert clock.tick_s == pytest.approx(0.003) and clock.capacity_robots == int((DT - 0.001) / 0.001)
-    e.submit(control.SpawnRequest(name="c", y=3.0), r.reply("c"))
-    e.serve_pending()
-    refused = dict(r.log)["c"]
+    assert clock.tick_s == pytest.approx(0.021) and clock.capacity_robots == 1
+    assert not caplog.records
+    spawn("b", 2.0)  # crosses it: said at once
+    assert [m.getMessage() for m in caplog.records] == [
+        "2 robots: more than the about 1 like these this machine keeps in real time (measured); expect the "
+        "simulation to fall behind"
+    ]
+    per_tick[0] = 0.041
+    run(20)
+    refused = spawn("c", 4.0)
     assert isinstance(refused, FleetError) and refused.code is ErrorCode.ROBOT_LIMIT
-    assert str(refused) == ("robot_limit: the daemon's robot limit (2) is reached; this machine keeps about "
-                            f"{clock.capacity_robots} robots like these in real time (measured)")  # fmt: skip
+    assert str(refused) == (
+        "robot_limit: the daemon's robot limit (2) is reached; this machine keeps about 1 robots like these in real "
+        "time (measured)"
+    )
     assert clock.behind_s == 0.0 and not clock.falling_behind  # lockstep is never behind
+    stepped = e.clock(measured_cost=False)  # as a step's reply has it: nothing measured in it
+    assert (stepped.tick_s, stepped.capacity_robots) == (0.0, 0)
 
 
 def test_the_factor_is_measured_over_seconds_however_fast_the_ticks_come() -> None:
