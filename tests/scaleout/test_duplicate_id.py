@@ -1,21 +1,27 @@
 """A duplicate ``--id`` in a shared fleet is always refused: after the fleet has been busy
 (hundreds of robots spread over two daemons, paused, stepped and resumed) and with it running,
 a third daemon with the first one's id exits with the one-line refusal, try after try; of two
-started with one id at once, one runs. Real processes through a router on loopback."""
+started with one id at once, one runs. Real processes through a router on loopback, and a
+look at a fleet that never finishes answering on two real sessions."""
 
 from __future__ import annotations
 
+import re
 import subprocess
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import zenoh
 
 from clients import FleetClient, wait_until
 from protocol.control import SpawnRequest
-from tests.conftest import ROOT, simd_command
+from protocol.keys import Keys
+from simd.adapters.fleet.presence import Unanswered, infos
+from tests.conftest import ROOT, free_port, simd_command
 from tests.scaleout.test_router import _start, _stop, router  # noqa: F401  (the router fixture)
+from tests.zraw import client_config
 
 Router = tuple[str, subprocess.Popen[str], Path]
 REFUSAL = "a daemon with --id 'a' already serves prefix 'fleet': give this one another --id"
@@ -93,3 +99,24 @@ def test_of_two_daemons_started_with_one_id_at_once_one_runs(router: Router, tmp
     finally:
         for p in twins:
             _stop(p)
+
+
+def test_a_fleet_that_does_not_finish_answering_is_never_taken_for_an_empty_one() -> None:
+    """The look ends on every answer, not on a timer: a daemon that never finishes its answer
+    makes the look fail (the daemon does not start) rather than look like nobody there."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    held: list[zenoh.Query] = []
+    with zenoh.open(conf) as mute, zenoh.open(client_config(f"tcp/127.0.0.1:{port}")) as joiner:
+        queryable = mute.declare_queryable("fleet/daemons", held.append)  # holds each query, answers nothing
+        querier = joiner.declare_querier("fleet/daemons")
+        assert wait_until(lambda: querier.matching_status.matching, 5.0)  # type: ignore[attr-defined]  # stub: bool
+        with pytest.raises(Unanswered, match=re.escape("no complete answer on fleet/daemons within 0.5 s")):
+            infos(joiner, Keys(), timeout=0.5)
+        assert held  # it was asked
+        held.clear()
+        querier.undeclare()
+        queryable.undeclare()
