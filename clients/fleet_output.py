@@ -117,7 +117,17 @@ def describe_world(w: WorldInfo) -> list[str]:
 def describe_clock(c: Clock) -> str:
     state = "lockstep" if c.lockstep else ("paused" if c.paused else "running")
     target = "max" if c.target_real_time_factor == 0 else f"{c.target_real_time_factor:g}"
-    return (
+    line = (
         f"sim time {c.clock.to_seconds():.3f} s, tick {c.tick}, {state}, "
         f"real-time factor {c.real_time_factor:.2f} (target {target}), robots {c.robots}"
     )
+    # what a daemon older than these fields does not say is left out (they decode as 0)
+    if c.falling_behind:
+        line += f", falling behind ({c.behind_s:.1f} s of sim time behind the target)"
+    elif c.behind_s >= 0.05:  # what rounds to 0.0 s is not worth a word
+        line += f", {c.behind_s:.1f} s of sim time behind the target"
+    if c.capacity_robots:
+        line += (
+            f"; a tick takes {c.tick_s * 1e3:.1f} ms: about {c.capacity_robots} robots like these keep real time here"
+        )
+    return line

@@ -252,6 +252,20 @@ class Clock(msgspec.Struct, kw_only=True):
     robots: int
     #: cmd_vel messages dropped because they did not decode or were not finite.
     dropped_commands: int = 0
+    #: Sim seconds the clock is behind where the target factor would have it since time last
+    #: started running (the start, a resume, a reset): it grows while the daemon cannot keep
+    #: up. 0 while paused, in lockstep and when unpaced (target 0).
+    behind_s: float = 0.0
+    #: Whether the daemon is falling behind its target now: set when the measured factor drops
+    #: below 0.9 of the target, cleared when it is back above 0.97 of it (or time stops).
+    falling_behind: bool = False
+    #: CPU seconds the daemon spends on a tick of the robots there now, all its threads
+    #: (simulation, publishing, zenoh; moving average; 0: not measured yet, and always 0 in a
+    #: step's reply, which stays deterministic).
+    tick_s: float = 0.0
+    #: About how many robots like these the daemon can keep in real time on this machine now,
+    #: from its measured tick cost (0: not known yet; 0 in a step's reply too).
+    capacity_robots: int = 0
 
 
 class Observation(msgspec.Struct, kw_only=True):

@@ -390,10 +390,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"simd: warning: listening on {', '.join(exposed)} without authentication: anyone who can reach it "
               "can spawn, delete and drive robots and answer in the daemon's place; for a secured fleet see "
               "docs/security.md (fleet-security init)", file=sys.stderr, flush=True)  # fmt: skip
-    from simd.adapters.fleet.presence import Members, Presence, fleet_tick, infos, refusal, serving
+    from simd.adapters.fleet.presence import Members, Presence, Unanswered, fleet_tick, infos, refusal, serving, twin
 
-    others = serving(session, keys)
-    why = refusal(others, infos(session, keys) if others else [], args.id, world.name, args.join, keys.prefix)
+    try:  # asked, not listened for: the answer does not depend on how busy the fleet is
+        there = infos(session, keys)
+        others = sorted(set(serving(session, keys)) | {i.id for i in there})
+        why = refusal(others, there, args.id, world.name, args.join, keys.prefix)
+    except Unanswered as e:
+        why = f"{e}; is the network or the fleet at prefix {keys.prefix!r} overloaded?"
     if why is not None:
         session.close()
         if ros_session is not None:
@@ -426,6 +430,13 @@ def main(argv: list[str] | None = None) -> int:
             ghost_feed = GhostFeed(session, keys, members)
             engine.ghost_source = ghost_feed
         presence = Presence(session, keys, args.id, world.name, shared=args.join)
+        if args.join:  # another with this id may have started at the same moment: the later leaves
+            try:
+                first = twin(session, keys, presence.info)
+            except Unanswered as e:
+                return fail(f"{e}; is the network or the fleet at prefix {keys.prefix!r} overloaded?")
+            if first is not None:
+                return fail(refusal([args.id], [first], args.id, world.name, True, keys.prefix) or "")
         if ros_session is not None:
             from simd.adapters.ros2.adapter import Ros2Adapter, RosOptions
             from simd.adapters.ros2.shared_fleet import SharedFleet

@@ -5,7 +5,9 @@ answered within milliseconds while ticks stay on a fixed sim-time grid. Each tic
 goes to every adapter (simd/engine/ports.py), which is all they see of the core. In lockstep
 (or while paused) time advances only through step requests; a long step runs in slices of
 about ``SLICE_SECONDS`` with the other requests served between them, so no request freezes
-the daemon, and a pause, resume or reset cancels what is left of it.
+the daemon, and a pause, resume or reset cancels what is left of it. When ticks are due is
+simd/engine/pacing.py's to say (and whether the loop keeps up); what they cost,
+simd/engine/capacity.py's.
 """
 
 from __future__ import annotations
@@ -43,8 +45,10 @@ from protocol.navigation import CancelRequest, NavigateRequest, NavigationReques
 from simd.core.robots import RobotTable
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
+from simd.engine.capacity import TickCost
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
 from simd.engine.observe import LatestScans, observe_packed
+from simd.engine.pacing import LagWatch, Pacer, RtfMeter
 from simd.engine.ports import (
     Adapter,
     Deleted,
@@ -69,8 +73,6 @@ log = logging.getLogger(__name__)
 MAX_PENDING_REQUESTS = 4096
 #: Ticks between clock messages: 10 Hz, as gazebo_ros publishes /clock.
 CLOCK_EVERY = 3
-#: If the loop falls this many ticks behind its schedule it stops trying to catch up.
-MAX_LAG_TICKS = 5
 #: Wall time a step runs before the requests that arrived meanwhile are served.
 SLICE_SECONDS = 0.02
 
@@ -146,28 +148,6 @@ def _command_rows(table: RobotTable, names: list[str]) -> list[int | None]:
     return [table.row_of(ns) for ns in names]
 
 
-@dataclass
-class RtfMeter:
-    """Sim seconds per wall second over the last ticks (about two seconds of them)."""
-
-    window: collections.deque[tuple[float, float]] = field(default_factory=lambda: collections.deque(maxlen=64))
-
-    def restart(self, wall: float, sim_time: float) -> None:
-        """Time starts running from here: the next tick already gives a measurement."""
-        self.window.clear()
-        self.window.append((wall, sim_time))
-
-    def record(self, wall: float, sim_time: float) -> None:
-        self.window.append((wall, sim_time))
-
-    def measure(self) -> float | None:
-        """The measured factor, or None before two points (right after a resume)."""
-        if len(self.window) < 2:
-            return None
-        (w0, s0), (w1, s1) = self.window[0], self.window[-1]
-        return (s1 - s0) / (w1 - w0) if w1 > w0 else None
-
-
 class Engine:
     """Runs a :class:`Simulation` for its adapters; see the module docstring."""
 
@@ -179,6 +159,7 @@ class Engine:
         lockstep: bool = False,
         paused: bool = False,
         clock: Callable[[], float] = time.monotonic,
+        cpu_clock: Callable[[], float] = time.process_time,
         saver: Saver | None = None,
         navigator: Navigator | None = None,
     ) -> None:
@@ -197,6 +178,11 @@ class Engine:
         self._scans = LatestScans(sim.config.scan_every)  # each robot's newest scan
         self._last_snap: TickSnapshot | None = None
         self._rtf = RtfMeter()
+        self._pacer = Pacer(sim.config.dt, rtf)
+        self._lag = LagWatch()
+        self._cost = TickCost()
+        self._cpu = cpu_clock  # the whole process's CPU time: the cost of a tick, publishing included
+        self._cpu_mark: float | None = None  # at the end of the last tick while time runs on
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
         self._models: tuple[list[str] | None, list[str]] = (None, [])  # (namespaces, their models)
@@ -247,9 +233,12 @@ class Engine:
 
     # -- status -----------------------------------------------------------------------------
 
-    def clock(self) -> Clock:
+    def clock(self, measured_cost: bool = True) -> Clock:
+        """The clock now; with ``measured_cost`` False without the tick cost and capacity (a
+        step's reply: the same seed and commands give the same bytes)."""
         sim = self.sim
-        measured = None if self.paused else self._rtf.measure()
+        running = not self.paused
+        measured = self._rtf.measure() if running else None
         return Clock(
             clock=Time.from_seconds(sim.time),
             tick=sim.tick,
@@ -261,17 +250,25 @@ class Engine:
             target_real_time_factor=self.rtf,
             robots=len(sim),
             dropped_commands=sum(a.dropped_commands() for a in self.adapters),
+            behind_s=self._pacer.behind_s(self._wall()) if running else 0.0,
+            falling_behind=running and self._lag.behind,
+            tick_s=self._cost.mean_s if measured_cost else 0.0,
+            capacity_robots=self.capacity() if measured_cost else 0,
         )
+
+    def capacity(self) -> int:
+        """About how many robots like these this machine keeps in real time (0: not known yet).
+        Real time, whatever the target: the number a user sizes a fleet by."""
+        return self._cost.capacity(self.sim.config.dt)
 
     # -- the loop ---------------------------------------------------------------------------
 
     def run(self) -> None:
         """Serve and tick until :meth:`stop`; then cancel what is left and close the adapters."""
-        period = self.sim.config.dt / self.rtf if self.rtf > 0 else 0.0
-        next_tick = self._wall()
-        self._rtf.restart(next_tick, self.sim.time)
+        start = self._wall()
+        self._start_time(start)
         if self._saver is not None:
-            self._next_save = next_tick  # at once: a restored or new fleet is on disk from the start
+            self._next_save = start  # at once: a restored or new fleet is on disk from the start
         try:
             while not self.stop_event.is_set():
                 if self._saver is not None and self._wall() >= self._next_save:
@@ -280,27 +277,49 @@ class Engine:
                     self._run_slice()
                     self.serve_pending()
                     continue
-                now = self._wall()
-                timeout = 0.25 if self.paused else max(0.0, next_tick - now)
+                timeout = 0.25 if self.paused else self._pacer.wait(self._wall())
                 call = self._next_call(timeout)
                 if call is not None:
                     self._serve(call)
                     continue
                 if self.paused:
                     self._gather_commands()  # keep the adapters' buffers drained while time stands still
-                    next_tick = self._wall()
                     continue
-                if self._wall() >= next_tick:
+                if self._pacer.due(self._wall()):
                     self.tick()
-                    next_tick += period
                     now = self._wall()
-                    if now - next_tick > MAX_LAG_TICKS * period:
-                        next_tick = now  # fell behind: run slower than real time rather than burst
+                    self._pacer.ticked(now)
+                    self._lag.judge(now, self._rtf.measure(), self._rtf.span(), self.rtf, self._load)
         finally:
             self._cancel_steps()
             self.serve_pending()
             if self._saver is not None:
                 self._saver.save_now(capture(self.sim, self._goals()))
+
+    def _tick_cost(self, robots: int) -> None:
+        """What the daemon spent since the last tick, all its threads (the outbox encoding and
+        zenoh sending this tick's messages take more than the physics): the tick's cost, while
+        time runs on (the first tick after time stood still would count the idle wait)."""
+        now = self._cpu()
+        if self._cpu_mark is not None:
+            self._cost.record(robots, now - self._cpu_mark)
+        self._cpu_mark = now
+
+    def _start_time(self, now: float) -> None:
+        """Time starts running now (the start, a resume, a reset): the first tick is due a
+        period from now, and the factor is measured from here."""
+        self._pacer.start(now)
+        self._rtf.restart(now, self.sim.time)
+        self._cpu_mark = None
+
+    def _load(self) -> str:
+        """What the warning of a loop falling behind says of its load."""
+        n, cost = len(self.sim), self._cost.mean_s
+        if not n or not cost:
+            return ""
+        said = f"; {n} robots, a tick takes {cost * 1e3:.1f} ms of the {self._pacer.period * 1e3:.1f} ms it may"
+        cap = self.capacity()
+        return said + (f" (about {cap} robots like these keep real time here)" if cap else "")
 
     def _save(self) -> None:
         assert self._saver is not None
@@ -370,6 +389,7 @@ class Engine:
                 a.on_tick(snap)
             if snap.tick % CLOCK_EVERY == 0:
                 self._announce_clock()
+        self._tick_cost(len(snap.namespaces))
         return snap
 
     def _own_robots(self) -> OwnRobots:
@@ -404,12 +424,23 @@ class Engine:
             _send(call.reply, result)
 
     def _spawn(self, req: SpawnRequest, reply: Reply) -> Result:
-        robot = self.sim.spawn(req)
+        try:
+            robot = self.sim.spawn(req)
+        except FleetError as e:
+            cap = self.capacity()
+            if e.code is not ErrorCode.ROBOT_LIMIT or not cap:
+                raise
+            said = f"{e.message}; this machine keeps about {cap} robots like these in real time (measured)"
+            raise FleetError(e.code, said, e.field) from None
         state = self.sim.state(robot)
         self._event(Spawned(state, self.sim.time))
         self._changed()
         log.info("spawned %s (%s) at (%.3f, %.3f, %.3f) ns=%s", robot.name, robot.model.name,
                  state.x, state.y, state.yaw, robot.namespace)  # fmt: skip
+        cap = self.capacity()
+        if cap and len(self.sim) == cap + 1:  # this spawn crossed it: said before it bites
+            log.warning("%d robots: more than the about %d like these this machine keeps in real time (measured); "
+                        "expect the simulation to fall behind", len(self.sim), cap)  # fmt: skip
         return state
 
     def _delete(self, req: DeleteRequest, reply: Reply) -> Result:
@@ -446,6 +477,8 @@ class Engine:
     def _pause(self, req: PauseRequest, reply: Reply) -> Result:
         self._cancel_steps()
         self.paused = True
+        self._cpu_mark = None
+        self._lag.stopped("paused")
         self._announce_clock()
         return self.clock()
 
@@ -456,8 +489,9 @@ class Engine:
                 "the daemon runs in lockstep: time advances only through sim/step",
             )
         self._cancel_steps()
-        self.paused = False
-        self._rtf.restart(self._wall(), self.sim.time)
+        if self.paused:  # a resume while running changes nothing (no new grid, no burst)
+            self.paused = False
+            self._start_time(self._wall())
         self._announce_clock()
         return self.clock()
 
@@ -474,7 +508,8 @@ class Engine:
             self._tell_navigation()
         self._event(WorldReset(self.sim.epoch))
         self._changed()
-        self._rtf.restart(self._wall(), self.sim.time)
+        self._lag.stopped("the simulation was reset")
+        self._start_time(self._wall())
         self._announce_clock()
         return self.clock()
 
@@ -540,6 +575,7 @@ class Engine:
                 break
         if job.ran >= job.request.ticks:
             self._steps.popleft()
+            self._cpu_mark = None  # between steps the daemon waits for the next
             _send(job.reply, self._step_result(job, cancelled=False))
 
     def _cancel_steps(self) -> None:
@@ -549,7 +585,7 @@ class Engine:
 
     def _step_result(self, job: _StepJob, cancelled: bool) -> StepResult:
         if job.request.packed:
-            return StepResult(self.clock(), job.ran, cancelled, packed=self._observe_packed(job))
+            return StepResult(self.clock(measured_cost=False), job.ran, cancelled, packed=self._observe_packed(job))
         states = {}
         scans = {}
         for key in job.request.observe:
@@ -560,7 +596,7 @@ class Engine:
             scan = self._scans.get(robot.namespace)
             if scan is not None:
                 scans[key] = ScanRow(*scan)
-        return StepResult(self.clock(), job.ran, cancelled, states, scans)
+        return StepResult(self.clock(measured_cost=False), job.ran, cancelled, states, scans)
 
     def _observe_packed(self, job: _StepJob) -> ObservedArrays:
         """The odometry and latest scans of the robots the step observes, as arrays (robots

@@ -153,3 +153,16 @@ def test_the_clock_line(paused: bool, lockstep: bool, target: float, text: str) 
     c = Clock(clock=Time(sec=3, nanosec=500_000_000), tick=105, dt=1 / 30, paused=paused, lockstep=lockstep,
               real_time_factor=0.98, target_real_time_factor=target, robots=4)  # fmt: skip
     assert describe_clock(c) == f"sim time 3.500 s, tick 105, {text}, robots 4"
+
+
+def test_the_clock_line_says_when_the_daemon_falls_behind_and_what_it_can_keep() -> None:
+    c = Clock(clock=Time(sec=3), tick=90, dt=1 / 30, paused=False, lockstep=False, real_time_factor=0.42,
+              target_real_time_factor=1.0, robots=900, behind_s=12.34, falling_behind=True, tick_s=0.0791,
+              capacity_robots=380)  # fmt: skip
+    assert describe_clock(c) == (
+        "sim time 3.000 s, tick 90, running, real-time factor 0.42 (target 1), robots 900, falling behind "
+        "(12.3 s of sim time behind the target); a tick takes 79.1 ms: about 380 robots like these keep real "
+        "time here"
+    )
+    recovered = msgspec.structs.replace(c, falling_behind=False, real_time_factor=1.0)
+    assert "robots 900, 12.3 s of sim time behind the target;" in describe_clock(recovered)

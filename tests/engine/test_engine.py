@@ -18,7 +18,7 @@ from simd.core.sim import SimConfig, Simulation
 from simd.core.snapshot import TickSnapshot
 from simd.core.worldfile import load_world
 from simd.engine import Engine
-from simd.engine.engine import RtfMeter
+from simd.engine.pacing import RtfMeter
 from simd.engine.ports import Deleted, Event, Reply, Result, RobotList, Spawned, StepResult, WorldReset
 
 

@@ -147,3 +147,40 @@ def test_error_reply_roundtrip() -> None:
     back = FleetError.from_reply(decode(encode(err.to_reply(), "json"), type(err.to_reply())))
     assert (back.code, back.message, back.field) == (ErrorCode.COLLISION, "overlaps", "x")
     assert str(back) == "collision: overlaps"
+
+
+class _ClockBeforeOverload(msgspec.Struct, kw_only=True):
+    """``Clock`` as a client built before the lag and capacity fields has it."""
+
+    clock: Time
+    tick: int
+    dt: float
+    paused: bool
+    lockstep: bool
+    real_time_factor: float
+    target_real_time_factor: float
+    robots: int
+    dropped_commands: int = 0
+
+
+@pytest.mark.parametrize("fmt", ["msgpack", "json"])
+def test_the_clocks_lag_and_capacity_fields_keep_old_and_new_peers_reading_each_other(fmt: str) -> None:
+    from protocol.control import Clock
+
+    new = Clock(clock=Time(sec=2), tick=60, dt=1 / 30, paused=False, lockstep=False, real_time_factor=0.5,
+                target_real_time_factor=1.0, robots=3, behind_s=1.5, falling_behind=True, tick_s=0.07,
+                capacity_robots=40)  # fmt: skip
+    old = _ClockBeforeOverload(**{f: getattr(new, f) for f in _ClockBeforeOverload.__struct_fields__})
+    codec = (
+        (msgspec.msgpack.encode, msgspec.msgpack.decode)
+        if fmt == "msgpack"
+        else (msgspec.json.encode, msgspec.json.decode)
+    )
+    assert codec[1](codec[0](new), type=_ClockBeforeOverload) == old  # an old client reads a new daemon
+    from_old = codec[1](codec[0](old), type=Clock)  # a new client reads an old daemon: nothing said, nothing behind
+    assert (from_old.behind_s, from_old.falling_behind, from_old.tick_s, from_old.capacity_robots) == (
+        0.0,
+        False,
+        0.0,
+        0,
+    )

@@ -6,7 +6,16 @@ serve a key space, and for how long (the token goes when the daemon does, howeve
 Until daemons can share one fleet (issue "scale-out": spawns placed on one daemon, one list,
 robots that see each other across daemons), two daemons on one key space would both answer
 every spawn and each list only their own robots; a daemon therefore refuses to start where
-another already serves its prefix, and says how to run beside it.
+another already serves its prefix, and says how to run beside it. In a shared fleet two
+daemons with one ``--id`` would answer as one, so a joining daemon with an id taken is refused.
+
+Who is there is asked, not listened for: a liveliness query (the tokens the network knows) and
+a query on ``P/daemons`` that every daemon answers, each ending as soon as every answer is in
+(zenoh's final reply), which on one network is milliseconds and does not depend on how busy
+the fleet is. The bound ``ASK_S`` only stops a wait for a fleet that cannot answer at all, and
+a daemon that meets it does not start (:class:`Unanswered`): never a guess from silence. Two
+daemons started with one id at the same moment both pass that look; each then looks again
+with its own answer declared, and the later of the two leaves (:func:`twin`).
 """
 
 from __future__ import annotations
@@ -28,23 +37,36 @@ from simd.adapters.fleet.requests import Pending, reply_format
 
 T = TypeVar("T")
 
-#: how long a starting daemon looks for others (they answer in milliseconds on one network)
-LOOK_S = 1.0
+#: the most a starting daemon waits for the fleet's answers (they end in milliseconds: see the
+#: module docstring); a fleet that has not answered by then keeps the daemon from starting
+ASK_S = 30.0
 
 
-def serving(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list[str]:
-    """The ids of the daemons that serve ``keys``' prefix on this network now."""
+class Unanswered(Exception):
+    """The fleet did not finish answering within the bound: who serves the prefix is unknown."""
+
+    def __init__(self, what: str, timeout: float) -> None:
+        super().__init__(f"no complete answer on {what} within {timeout:g} s: cannot tell which daemons serve it")
+
+
+def serving(session: zenoh.Session, keys: Keys, timeout: float = ASK_S) -> list[str]:
+    """The ids of the daemons that serve ``keys``' prefix on this network now (their tokens)."""
     found = []
     head = keys.daemon("")
+    began = time.monotonic()
     for reply in session.liveliness().get(keys.daemon("*"), timeout=timeout):
         if reply.ok is not None:
             found.append(str(reply.ok.key_expr)[len(head) :])
+    if time.monotonic() - began >= timeout:
+        raise Unanswered(keys.daemon("*"), timeout)
     return sorted(found)
 
 
-def _answers(session: zenoh.Session, key: str, reply_type: type[T], timeout: float) -> list[T]:
-    """Every daemon's answer on ``key`` (target all, no consolidation); others' replies left out."""
+def _answers(session: zenoh.Session, key: str, reply_type: type[T], timeout: float, complete: bool = False) -> list[T]:
+    """Every daemon's answer on ``key`` (target all, no consolidation); others' replies left
+    out. ``complete``: raise :class:`Unanswered` if the bound ended the query."""
     found = []
+    began = time.monotonic()
     for reply in session.get(
         f"{key}?format=msgpack",
         timeout=timeout,
@@ -56,15 +78,27 @@ def _answers(session: zenoh.Session, key: str, reply_type: type[T], timeout: flo
                 found.append(decode(reply.ok.payload.to_bytes(), reply_type))
             except FleetError:
                 continue  # not a daemon of ours
+    if complete and time.monotonic() - began >= timeout:
+        raise Unanswered(key, timeout)
     return found
 
 
-def infos(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> list[DaemonInfo]:
-    """What the daemons serving ``keys``' prefix say of themselves (``P/daemons``)."""
-    return _answers(session, keys.daemons, DaemonInfo, timeout)
+def infos(session: zenoh.Session, keys: Keys, timeout: float = ASK_S) -> list[DaemonInfo]:
+    """What every daemon serving ``keys``' prefix says of itself (``P/daemons``), all of them
+    (raises :class:`Unanswered` if they did not all answer within ``timeout``)."""
+    return _answers(session, keys.daemons, DaemonInfo, timeout, complete=True)
 
 
-def fleet_tick(session: zenoh.Session, keys: Keys, timeout: float = LOOK_S) -> int | None:
+def twin(session: zenoh.Session, keys: Keys, me: DaemonInfo, timeout: float = ASK_S) -> DaemonInfo | None:
+    """Another daemon with this one's id that started first (by its start time, then its zenoh
+    id), asked once this one's own answer is declared: of two started at once, the later
+    leaves."""
+    rank = (me.started, me.zid)
+    same = [i for i in infos(session, keys, timeout) if i.id == me.id and i.zid != me.zid and (i.started, i.zid) < rank]
+    return min(same, key=lambda i: (i.started, i.zid)) if same else None
+
+
+def fleet_tick(session: zenoh.Session, keys: Keys, timeout: float = ASK_S) -> int | None:
     """The tick the fleet's daemons are at (the latest of their clocks), None if none answers:
     a daemon that joins starts its clock there, so that the fleet steps its ticks together."""
     ticks = [c.tick for c in _answers(session, keys.clock, Clock, timeout)]

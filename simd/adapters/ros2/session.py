@@ -56,7 +56,6 @@ RMW_ZENOH_SETTINGS = {
 }
 
 
-
 class RosConfigError(ValueError):
     """A ROS session setting that cannot be used; the message is one line for the user."""
 
