@@ -400,6 +400,9 @@ class Run:
                 words = shlex.split(part)
                 if words and words[0] in PROGRAMS[:-2]:
                     check_flags(words, s.where())
+                for word in words:  # files of the checkout it names (rviz2 -d docs/ros2/fleetsim.rviz)
+                    if word.startswith("docs/"):
+                        assert (ROOT / word).exists(), f"{s.where()}: {word} is not in the checkout"
 
     def _browser(self, s: Step) -> None:
         from tests.cdp import Chromium
