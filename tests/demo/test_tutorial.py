@@ -6,7 +6,6 @@ against the page's sample (the conventions: tests/demo/tutorial_page.py). The RE
 from __future__ import annotations
 
 import re
-import time
 from pathlib import Path
 
 import pytest
@@ -51,9 +50,7 @@ def test_the_page_uses_only_known_steps_and_every_command_has_a_terminal_to_stop
 def test_the_tutorial_runs_as_written(tmp_path: Path) -> None:
     checkout = tmp_path / "checkout"
     checkout.mkdir()
-    t0 = time.monotonic()
     run = run_page(checkout)
-    assert time.monotonic() - t0 < 100
     printed = {s.args[0]: out for s, out in run.outputs if s.kind in ("background", "tmux")}
     for name, sample in readme_samples().items():
         miss = unmatched(sample, printed[name])

@@ -57,6 +57,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from tests.cdp import Chromium
 from tests.conftest import ROOT, free_port
 
 PAGE = ROOT / "docs" / "tutorial.md"
@@ -265,7 +266,7 @@ class Run:
         self.terms: dict[str, Terminal] = {}
         self.tmux = [TMUX or "tmux", "-L", f"fleetsim-tutorial-{uuid.uuid4().hex[:8]}", "-f", "/dev/null"]
         self.tmux_started = False
-        self.browser: object = None
+        self.browser: Chromium | None = None
         self.outputs: list[tuple[Step, str]] = []  # every command's real output, for the pictures script
 
     # -- the steps ----------------------------------------------------------------------------
@@ -405,15 +406,12 @@ class Run:
                         assert (ROOT / word).exists(), f"{s.where()}: {word} is not in the checkout"
 
     def _browser(self, s: Step) -> None:
-        from tests.cdp import Chromium
-
         term = self.terms[s.args[0]]
         m = re.search(r"http://[\w.:]+/?", term.output())
         assert m, f"{s.where()}: {s.args[0]} printed no URL:\n{term.output()}"
         if self.browser is None:
             self.browser = Chromium(self.cwd.parent / f"{self.cwd.name}-chromium", width=1100, height=760)
         browser = self.browser
-        assert isinstance(browser, Chromium)
         if browser.evaluate("location.href").rstrip("/") != m.group(0).rstrip("/"):
             browser.navigate(m.group(0))
         try:
@@ -442,7 +440,7 @@ class Run:
     def close(self) -> None:
         """Whatever still runs (a failed run): stopped, as a reader would."""
         if self.browser is not None:
-            self.browser.close()  # type: ignore[attr-defined]
+            self.browser.close()
         for term in self.terms.values():
             if term.proc is not None and term.proc.poll() is None:
                 os.killpg(term.proc.pid, signal.SIGINT)
@@ -485,7 +483,8 @@ def check_flags(words: list[str], where: str) -> None:
         with contextlib.redirect_stderr(err):
             parser.parse_args(args)
     except SystemExit as e:
-        raise AssertionError(f"{where}: {shlex.join(words)}: {err.getvalue().strip()}") from e
+        said = err.getvalue().strip().splitlines() or ["(nothing)"]
+        raise AssertionError(f"{where}: {shlex.join(words)}: {said[-1]}") from e
 
 
 def run_page(cwd: Path, pictures: Path | None = None, echo: Callable[[str], None] | None = None) -> Run:
