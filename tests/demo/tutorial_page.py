@@ -435,6 +435,16 @@ class Run:
         if self.pictures is not None:
             (self.pictures / name).write_bytes(png)
 
+    def context(self) -> str:
+        """What the terminals still open show (the last lines), for a failure's message."""
+        out = []
+        for name, term in self.terms.items():
+            text = term.output() if term.proc is not None else self.pane(name)
+            tail = "\n".join(f"    {line}" for line in text.rstrip().splitlines()[-12:])
+            state = "running" if term.proc is None or term.proc.poll() is None else "ended"
+            out.append(f"-- terminal {name} ({state}):\n{tail}")
+        return "\n".join(out)
+
     # -- the end --------------------------------------------------------------------------------
 
     def close(self) -> None:
@@ -494,7 +504,10 @@ def run_page(cwd: Path, pictures: Path | None = None, echo: Callable[[str], None
     run = Run(cwd, pictures, echo)
     try:
         for s in steps:
-            run.step(s)
+            try:
+                run.step(s)
+            except AssertionError as e:
+                raise AssertionError(f"{e}\n{run.context()}") from None
         assert not run.terms, f"the page ends with {sorted(run.terms)} still running: say how to stop them"
     finally:
         run.close()
