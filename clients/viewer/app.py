@@ -144,11 +144,11 @@ class FrameStream:
                 await asyncio.wait({receiver}, timeout=max(0.0, delay))
             if receiver.done():
                 break
+            if self.world_version != self.state.world_version:  # a daemon restarted in another world
+                await self._send_world()
             if self.seq - self.acked >= WINDOW:
                 self.skipped += 1  # the page has not drawn the last frames: drop this tick
                 continue
-            if self.world_version != self.state.world_version:  # a daemon restarted in another world
-                await self._send_world()
             self.seq += 1
             extra = {"skipped": self.skipped, "build_ms": round(build_ms, 2)}
             version, meta, data, stats = self.state.frame(self.view, self.seq, self.meta_version, extra)

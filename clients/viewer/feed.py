@@ -55,7 +55,7 @@ class Feed:
     def _records_loop(self) -> None:
         wanted = self.state.records_wanted
         while not self._stop.is_set():
-            if not wanted.wait(0.25):
+            if not wanted.wait(0.25) and not self.state.world_wanted.is_set():
                 continue
             wanted.clear()
             self._stop.wait(0.05)  # let a burst of spawns arrive, then ask once
@@ -63,9 +63,10 @@ class Feed:
                 self.state.world_wanted.clear()
                 try:
                     self.state.set_world(self.client.world())
-                except FleetError as e:
-                    log.warning("could not ask for the world: %s", e)
+                except FleetError as e:  # a daemon's token can come before its queryables answer
+                    log.debug("could not ask for the world yet: %s", e)
                     self.state.world_wanted.set()
+                    self._stop.wait(0.25)
             try:
                 records = self.client.robots()
                 self.state.apply_records(records)
