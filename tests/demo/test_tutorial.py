@@ -28,7 +28,7 @@ def readme_samples() -> dict[str, str]:
 
 def test_samples_match_numbers_and_ellipses_but_not_words() -> None:
     sample = "fleet-map: wrote a.yaml: 186x164 cells, ... scans\n\n...\nTB3_2: reached (-1.29, 1.46)"
-    out = "noise\nfleet-map: wrote a.yaml: 190x160 cells, 12 scans from 1 robots\nx\nTB3_2: reached (0.5, -2.00)\n"
+    out = "noise\nfleet-map: wrote a.yaml: 190x160 cells, 12 scans from 1 robot\nx\nTB3_2: reached (0.5, -2.00)\n"
     assert unmatched(sample, out) is None
     assert unmatched(sample, out.replace("reached", "failed")) == "TB3_2: reached (-1.29, 1.46)"
     assert unmatched("b\na", "a\nb") == "a"  # in order
