@@ -12,7 +12,7 @@ import pytest
 
 from tests.cdp import CHROMIUM
 from tests.conftest import ROOT
-from tests.demo.tutorial_page import PAGE, TMUX, parse, run_page, sample_pattern, unmatched
+from tests.demo.tutorial_page import PAGE, TMUX, VENV_BIN, parse, run_page, sample_pattern, unmatched
 
 README = ROOT / "README.md"
 
@@ -47,6 +47,7 @@ def test_the_page_uses_only_known_steps_and_every_command_has_a_terminal_to_stop
 @pytest.mark.browser
 @pytest.mark.skipif(TMUX is None, reason="tmux is not installed (./test installs it when run as root)")
 @pytest.mark.skipif(CHROMIUM is None, reason="chromium is not installed (./test installs it when run as root)")
+@pytest.mark.skipif(not (VENV_BIN / "fleet-view").exists(), reason="no fleet-view beside this python")
 def test_the_tutorial_runs_as_written(tmp_path: Path) -> None:
     checkout = tmp_path / "checkout"
     checkout.mkdir()
