@@ -267,8 +267,12 @@ class Drive:
 
 def progress_line(mapper: Mapper, elapsed: float) -> str:
     g = mapper.grid
-    return (f"mapping {elapsed:6.1f} s: {len(mapper.paths)} robots, {g.scans} scans, "
+    return (f"mapping {elapsed:6.1f} s: {_robots(len(mapper.paths))}, {g.scans} scans, "
             f"explored {g.explored_m2():.1f} m²")  # fmt: skip
+
+
+def _robots(n: int) -> str:
+    return f"{n} robot{'s' if n != 1 else ''}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -335,7 +339,7 @@ def main(argv: list[str] | None = None) -> int:
         print("fleet-map: explored over sim time: " + ", ".join(f"{t:.0f} s {a:.1f} m²" for t, a in steps), flush=True)
     print(
         f"fleet-map: wrote {meta}, {pgm} and {png}: {occupancy.width}x{occupancy.height} cells of "
-        f"{plan.resolution:g} m, {grid.scans} scans from {len(mapper.paths)} robots, explored "
+        f"{plan.resolution:g} m, {grid.scans} scans from {_robots(len(mapper.paths))}, explored "
         f"{grid.explored_m2():.1f} m² ({np.count_nonzero(cells == 100)} occupied cells)",
         flush=True,
     )

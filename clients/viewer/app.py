@@ -93,12 +93,13 @@ class FrameStream:
         self.skipped = 0
         self.meta_version = -1
         self.nav = NavCursor()
+        self.world_version = -1
 
     async def run(self) -> None:
         await self.ws.accept()
         receiver = asyncio.create_task(self._receive())
         try:
-            await self.ws.send_text(self.state.world_json().decode())
+            await self._send_world()
             await self._send_loop(receiver)
         except (WebSocketDisconnect, RuntimeError, ConnectionError):
             pass
@@ -106,6 +107,10 @@ class FrameStream:
             receiver.cancel()
             with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
                 await receiver
+
+    async def _send_world(self) -> None:
+        self.world_version = self.state.world_version
+        await self.ws.send_text(self.state.world_json().decode())
 
     async def _receive(self) -> None:
         while True:
@@ -139,6 +144,8 @@ class FrameStream:
                 await asyncio.wait({receiver}, timeout=max(0.0, delay))
             if receiver.done():
                 break
+            if self.world_version != self.state.world_version:  # a daemon restarted in another world
+                await self._send_world()
             if self.seq - self.acked >= WINDOW:
                 self.skipped += 1  # the page has not drawn the last frames: drop this tick
                 continue

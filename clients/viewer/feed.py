@@ -29,7 +29,8 @@ class Feed:
         self._live_map: LiveMap | None = None
 
     def start(self) -> None:
-        self.state.world = self.client.world()
+        self.state.set_world(self.client.world())
+        self._subs.append(self.client.on_daemons(self.state.on_daemon))
         self._subs.append(self.client.on_presence(self.state.on_presence))
         # the fleet topics: one message a tick for all robots, where the per-robot topics would
         # be 35 000 messages a second at 1 000 robots (each ~10 us of this process's CPU)
@@ -54,10 +55,18 @@ class Feed:
     def _records_loop(self) -> None:
         wanted = self.state.records_wanted
         while not self._stop.is_set():
-            if not wanted.wait(0.25):
+            if not wanted.wait(0.25) and not self.state.world_wanted.is_set():
                 continue
             wanted.clear()
             self._stop.wait(0.05)  # let a burst of spawns arrive, then ask once
+            if self.state.world_wanted.is_set():
+                self.state.world_wanted.clear()
+                try:
+                    self.state.set_world(self.client.world())
+                except FleetError as e:  # a daemon's token can come before its queryables answer
+                    log.debug("could not ask for the world yet: %s", e)
+                    self.state.world_wanted.set()
+                    self._stop.wait(0.25)
             try:
                 records = self.client.robots()
                 self.state.apply_records(records)

@@ -107,6 +107,8 @@ class FleetState:
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self.world: WorldInfo | None = None
+        self.world_version = 0  # bumped when a restarted daemon serves another world
+        self.world_wanted = threading.Event()  # a daemon came: ask for the world again
         self._robots: dict[str, RobotState] = {}
         self.nav = NavBoard()  # under self._lock, for present robots only
         self._order: list[RobotState] = []  # robots with a record, natural order of name
@@ -118,7 +120,20 @@ class FleetState:
         self.scan_count = 0
         self.sim_time = 0.0
 
+    def set_world(self, world: WorldInfo) -> None:
+        """The daemon's world; pages are sent it again when it changed (a daemon restarted with
+        another ``--world``)."""
+        if world != self.world:
+            self.world = world
+            self.world_version += 1
+
     # -- written from zenoh callback threads ----------------------------------------------
+
+    def on_daemon(self, daemon_id: str, alive: bool) -> None:
+        """A daemon came (or came back): its world may not be the one shown."""
+        if alive:
+            self.world_wanted.set()
+            self.records_wanted.set()  # wakes the feed's thread
 
     def on_presence(self, ns: str, alive: bool) -> None:
         with self._lock:

@@ -409,3 +409,50 @@ def test_without_map_there_is_no_layer(daemon: Daemon, viewer_factory: Callable[
         urllib.request.urlopen(v.url + "map.png", timeout=5)
     assert e.value.code == 404
     e.value.close()
+
+
+def _world_names(url: str, want: str, timeout: float = 15.0) -> list[str]:
+    """The world messages a page receives on ``/ws`` until one names ``want`` (or the time is up)."""
+    from websockets.sync.client import connect
+
+    names: list[str] = []
+    deadline = time.monotonic() + timeout
+    with connect(url.replace("http://", "ws://") + "ws") as ws:
+        while want not in names and time.monotonic() < deadline:
+            try:
+                msg = ws.recv(timeout=max(0.01, deadline - time.monotonic()))
+            except TimeoutError:
+                break
+            if isinstance(msg, str) and (m := json.loads(msg)).get("type") == "world":
+                names.append(m["name"])
+    return names
+
+
+def test_a_daemon_restarted_in_another_world_is_drawn_in_it(
+    tmp_path: Path, viewer_factory: Callable[..., Viewer]
+) -> None:
+    """simd stopped and started again on its port with another --world: a running fleet-view
+    (and a page open meanwhile) shows the new world, as the tutorial's map step needs."""
+    from tests.conftest import start_daemon
+
+    first = start_daemon(tmp_path)
+    v = viewer_factory(first)
+    deadline = time.monotonic() + 15
+    while True:  # the server listens a moment after it prints its address
+        try:
+            urllib.request.urlopen(v.url + "api/counts", timeout=5).close()
+            break
+        except urllib.error.URLError:
+            assert time.monotonic() < deadline
+            time.sleep(0.1)
+    try:
+        assert _world_names(v.url, "turtlebot3_world")[:1] == ["turtlebot3_world"]
+    finally:
+        first.stop()
+    second = start_daemon(tmp_path, "--world", "empty", port=first.port)
+    try:
+        names = _world_names(v.url, "empty")  # a page opened now may first get the old one
+        assert names[-1:] == ["empty"], names
+    finally:
+        second.stop()
+    assert v.proc.poll() is None
