@@ -87,6 +87,10 @@ PATIENCE_S = 120.0
 #: a goal driven (not waiting, not making way) for its patience without getting this much (m)
 #: nearer fails (``blocked``): a robot that keeps trying and getting nowhere says so
 PROGRESS_M = 0.1
+#: a goal no nearer for this many patiences, in any state, fails (``blocked``): robots that
+#: take turns waiting for each other, each drive short of a way round, never stall for a whole
+#: patience in one state, and would cycle for ever
+STALL_PATIENCES = 2.0
 #: a robot the guard stops turns on the spot until it faces its way's first point within this
 #: (rad), then drives to that point (the corner it would have cut) until this near (m)
 FACING_RAD, CORNER_REACHED_M = 0.05, 0.03
@@ -206,7 +210,7 @@ class Navigator:
         robot.result = robot.feedback = None
         robot.command, robot.overridden_until = (0.0, 0.0), -math.inf
         robot.held_up_at_goal = False
-        robot.best_left, robot.progress_at, robot.corner = math.inf, now, None
+        robot.best_left, robot.progress_at, robot.nearer_at, robot.corner = math.inf, now, now, None
         self.floor.stop(robot)
         self._drive_of = None
         return NavigateReply(goal_id=goal_id, robot=namespace, goal=goal_pose(req), preempted=preempted,
@@ -597,6 +601,12 @@ class Navigator:
             if now - robot.progress_at >= self.config.patience:  # driving, maybe, but getting nowhere
                 self._end(robot, "failed", "blocked", f"no nearer the goal for {self.config.patience:g} s", now)
                 continue
+            if robot.overridden:
+                robot.nearer_at = now  # somebody else drives it: no stall of the navigator's
+            stall = STALL_PATIENCES * self.config.patience
+            if now - robot.nearer_at >= stall:  # by turns waiting, making way, driving: getting nowhere
+                self._end(robot, "failed", "blocked", f"no nearer the goal for {stall:g} s, waiting included", now)
+                continue
             if math.hypot(goal.x - x, goal.y - y) <= goal.tolerance:
                 if goal.yaw is None or abs(math.remainder(goal.yaw - yaw, 2 * math.pi)) <= goal.yaw_tolerance:
                     self._end(robot, "reached", "", "goal reached", now)
@@ -648,7 +658,7 @@ class Navigator:
             x, y = float(table.x[i]), float(table.y[i])
             left = floor.left(robot, x, y) if floor is not None and robot.planned else 0.0
             if robot.planned and left < robot.best_left - PROGRESS_M:
-                robot.best_left, robot.progress_at = left, now
+                robot.best_left, robot.progress_at, robot.nearer_at = left, now, now
             other = ""
             if robot.state == "waiting" and floor is not None:
                 other = slots.get(floor.waiting_for(robot), "")

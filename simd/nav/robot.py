@@ -53,6 +53,8 @@ class NavRobot:
     #: the least distance left it has had, and when it last got this much nearer (PROGRESS_M)
     best_left: float = math.inf
     progress_at: float = 0.0
+    #: when it last got that much nearer, whatever it did meanwhile (waited, made way, planned)
+    nearer_at: float = 0.0
     #: the corner of its way it goes to first (cutting it would reach into another's cells)
     corner: tuple[float, float] | None = None
 

@@ -9,6 +9,7 @@ import math
 from collections import deque
 
 import numpy as np
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -306,3 +307,39 @@ def test_ten_robots_in_turtlebot3_world_keep_reaching_goals() -> None:
     assert sum(reached.values()) >= 100, reached
     running = max(sim.time - robot.started for robot in nav.robots.values())
     assert max(longest, running) < 2 * PATIENCE_S  # nothing hangs
+
+
+def test_a_goal_that_gets_no_nearer_fails_blocked_whatever_its_states() -> None:
+    """Robots can take turns waiting for each other for ever, no wait as long as the patience
+    (a fleet in docs/tutorial.md's world once cycled so for 380 s, never ending its goals):
+    a goal no nearer for STALL_PATIENCES patiences ends ``blocked``, however its states
+    alternated meanwhile. The goal checks on their own (``_check_goals``), a robot that
+    stands still while its state cycles as in that fleet's: each wait shorter than the
+    patience, a moment's driving between them."""
+    from simd.nav.navigator import STALL_PATIENCES
+
+    patience = 10.0
+    world = open_world()
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots, NavConfig(patience=patience))
+    sim.spawn(SpawnRequest(name="a", x=-2.0, y=0.0, yaw=0.0))
+    robot = sim.find("a")
+    assert robot is not None
+    nav.goal("a", robot.model, NavigateRequest(x=2.0, y=0.0, tolerance=0.1), 0.0)
+    me = nav.robots["a"]
+    me.planned = True
+    cycle = (
+        ["waiting"] * 60 + ["driving"] * 5 + ["yielding"] * 40 + ["driving"] * 5 + ["planning"] * 3
+    )  # ticks of 0.1 s
+    result = None
+    for k in range(int(STALL_PATIENCES * patience * 10) + 20):
+        now = k * 0.1
+        me.state = cycle[k % len(cycle)]
+        nav._check_goals(sim.robots, now)
+        ended = nav.take_events().results
+        if ended:
+            result = ended[0]
+            break
+    assert result is not None and (result.status, result.reason) == ("failed", "blocked"), result
+    assert result.message == f"no nearer the goal for {STALL_PATIENCES * patience:g} s, waiting included"
+    assert result.navigation_time == pytest.approx(STALL_PATIENCES * patience, abs=0.11)
