@@ -67,7 +67,7 @@ from simd.adapters.ros2.nav_messages import (
     world_frames,
 )
 from simd.adapters.ros2.robot_ports import KeyPublisher, LatchedPublisher, Participant
-from simd.adapters.ros2.service_server import MAX_REQUEST_BYTES, Call, reply_sender
+from simd.adapters.ros2.service_server import MAX_REQUEST_BYTES, Call, read_request, reply_sender
 from simd.adapters.ros2.tf_layout import TfLayout
 from simd.adapters.zenoh_entities import Interest, undeclare_all
 from simd.engine.outbox import Outbox
@@ -193,14 +193,10 @@ class RosNavigation:
             name = part.name(f"/{namespace}/{ACTION}")
             send = reply_sender(query, key, graph.gid(key), self.p.legacy, name)
             call = Call(name, None, response_type, self.store, send, self.outbox)
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            try:
-                if len(payload) > MAX_REQUEST_BYTES:
-                    raise ValueError(f"request of {len(payload)} bytes")
-                call.request = self.store.deserialize_cdr(payload, request_type)
-            except Exception as e:  # rosbags raises several kinds for bytes that are not the type
+            wrong = read_request(call, query, self.store, request_type)
+            if wrong is not None:
                 self.malformed += 1
-                log.info("%s refused: malformed %s: %s: %s", call.name, request_type, type(e).__name__, e)
+                log.info("%s refused: %s", call.name, wrong)
                 call.respond(**refuse)
                 return
             self.outbox.put(partial(handle, namespace, call))

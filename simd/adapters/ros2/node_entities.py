@@ -37,7 +37,7 @@ from simd.adapters.ros2.graph import Kind, Node
 from simd.adapters.ros2.interfaces import typestore
 from simd.adapters.ros2.parameters import VALUE_FIELDS, Declared, NodeParameters, SetResult, value_of
 from simd.adapters.ros2.robot_ports import NODE_NAME, LatchedPublisher, Participant
-from simd.adapters.ros2.service_server import MAX_REQUEST_BYTES, Call, reply_sender
+from simd.adapters.ros2.service_server import Call, read_request, reply_sender
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.engine.outbox import Outbox
 
@@ -151,14 +151,10 @@ class ParameterServer:
             name = f"/{'/'.join(path)}/{suffix}"
             send = reply_sender(query, key, graph.gid(key), self._legacy, name)
             call = Call(name, None, response_type, self._store, send, self._outbox)
-            payload = query.payload.to_bytes() if query.payload is not None else b""
-            try:
-                if len(payload) > MAX_REQUEST_BYTES:
-                    raise ValueError(f"request of {len(payload)} bytes")
-                call.request = self._store.deserialize_cdr(payload, request_type)
-            except Exception as e:  # rosbags raises several kinds for bytes that are not the type
+            wrong = read_request(call, query, self._store, request_type)
+            if wrong is not None:
                 self.malformed += 1
-                log.info("%s refused: malformed %s: %s: %s", call.name, request_type, type(e).__name__, e)
+                log.info("%s refused: %s", call.name, wrong)
                 call.respond()  # empty lists, an unsuccessful result: as rclcpp answers a bad name
                 return
             handle(call)

@@ -168,15 +168,10 @@ class ServiceServer:
                 query.drop()  # a wildcard: somebody looking, not calling
                 return
             send = reply_sender(query, key, server_gid, self._legacy, service.name)
-            payload = query.payload.to_bytes() if query.payload is not None else b""
             call = Call(service.name, None, response_type, store, send, self.outbox, self.ask)
-            if len(payload) > MAX_REQUEST_BYTES:
-                self._malformed(service, call, f"request of {len(payload)} bytes is larger than {MAX_REQUEST_BYTES}")
-                return
-            try:
-                call.request = store.deserialize_cdr(payload, request_type)
-            except Exception as e:  # rosbags raises several kinds for bytes that are not the type
-                self._malformed(service, call, f"malformed {request_type}: {type(e).__name__}: {e}")
+            wrong = read_request(call, query, store, request_type)
+            if wrong is not None:
+                self._malformed(service, call, wrong)
                 return
             try:
                 service.handler(call)
@@ -193,6 +188,19 @@ class ServiceServer:
 
     def close(self) -> None:
         undeclare_all(self._entities)
+
+
+def read_request(call: Call, query: zenoh.Query, store: Typestore, request_type: str) -> str | None:
+    """Decode the query's CDR payload into ``call.request``; or why not, in one line (too
+    large, or bytes that are not a ``request_type``), and ``call.request`` stays None."""
+    payload = query.payload.to_bytes() if query.payload is not None else b""
+    if len(payload) > MAX_REQUEST_BYTES:
+        return f"request of {len(payload)} bytes is larger than {MAX_REQUEST_BYTES}"
+    try:
+        call.request = store.deserialize_cdr(payload, request_type)
+    except Exception as e:  # rosbags raises several kinds for bytes that are not the type
+        return f"malformed {request_type}: {type(e).__name__}: {e}"
+    return None
 
 
 def reply_sender(query: zenoh.Query, key: str, server_gid: bytes, legacy: LegacyNotice,
