@@ -1,0 +1,139 @@
+"""Time to goal in a crowd, pooled over seeds: the navigator on the simulation in one process.
+
+    python -m bench.nav_crowd                                # 10 burgers, turtlebot3_world, 12 seeds x 300 s
+    python -m bench.nav_crowd --robots 1 --seeds 4           # a lone burger, for what the crowd adds
+    python -m bench.nav_crowd --seeds 6 --seconds 200 --out crowd.json
+
+``bench.nav_bench`` runs one daemon over the fleet protocol, and one run of ten robots is one
+draw of a chaotic system: its p50 swings by a tenth between seeds. This runs the same
+navigator (simd/nav) on the same simulation tick by tick, lockstep, with no daemon and no
+network in between, so that many seeds cost little, and pools their goals: each robot always
+has a random reachable goal over 1 m away (a new one as soon as one ends, tolerance 0.1 m),
+and each goal reached gives its time over the lower bound, the straight line less the
+tolerance at the model's top speed (as nav_bench's). Printed: goals reached and failed, the
+pooled p50 / p75 / p95 of that ratio, and the closest two robots' centres came. Every number
+of a seed is the same on every run (lockstep, seeded goals).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from protocol.control import SpawnRequest
+from protocol.navigation import NavigateRequest
+from simd.core.models import MODELS
+from simd.core.sim import SimConfig, Simulation
+from simd.core.worldfile import load_world
+from simd.nav.flood import reachable
+from simd.nav.navigator import Navigator
+
+TOLERANCE_M = 0.1
+#: goals and spawns this far apart at least (m)
+MIN_GOAL_M, MIN_APART_M = 1.0, 0.7
+
+
+@dataclass
+class SeedRun:
+    seed: int
+    ratios: list[float]
+    failed: dict[str, int]
+    closest_m: float
+
+
+def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun:
+    world = load_world(world_name)
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots)
+    burger = MODELS["burger"]
+    cm = nav.costmap
+    start = cm.grid.cell(*world.default_spawn[:2])
+    if start is None:
+        raise SystemExit(f"nav_crowd: {world_name}'s default spawn is off its map")
+    ok = reachable(np.isfinite(cm.costs(burger)), start) & (cm.clearance >= burger.radius + 0.05)
+    rows, cols = np.nonzero(ok)
+    points = cm.grid.centres(np.stack([rows, cols], axis=1).astype(np.int32))
+    rng = np.random.default_rng(seed)
+    names: list[str] = []
+    for _ in range(100_000):
+        if len(names) == robots:
+            break
+        x, y = points[rng.integers(len(points))]
+        t = sim.robots
+        if len(t.x) and np.hypot(t.x - x, t.y - y).min() < MIN_APART_M:
+            continue
+        names.append(f"r{len(names)}")
+        sim.spawn(SpawnRequest(name=names[-1], x=float(x), y=float(y), yaw=float(rng.uniform(-math.pi, math.pi))))
+    bound: dict[str, float] = {}
+
+    def send(name: str) -> None:
+        row = sim.robots.row_of(name)
+        here = (float(sim.robots.x[row]), float(sim.robots.y[row]))
+        while True:
+            x, y = points[rng.integers(len(points))]
+            d = math.hypot(x - here[0], y - here[1])
+            if d > MIN_GOAL_M:
+                nav.goal(name, burger, NavigateRequest(x=float(x), y=float(y), tolerance=TOLERANCE_M), sim.time)
+                bound[name] = (d - TOLERANCE_M) / burger.max_linear_velocity
+                return
+
+    for name in names:
+        send(name)
+    out = SeedRun(seed, [], {}, math.inf)
+    for k in range(int(seconds / sim.config.dt)):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        for r in nav.take_events().results:
+            if r.status == "reached":
+                out.ratios.append(r.navigation_time / bound[r.robot])
+            else:
+                out.failed[r.reason] = out.failed.get(r.reason, 0) + 1
+            send(r.robot)
+        if k % 3 == 0 and robots > 1:
+            t = sim.robots
+            d = np.hypot(t.x[:, None] - t.x[None, :], t.y[:, None] - t.y[None, :]) + np.eye(len(t.x)) * 9.0
+            out.closest_m = min(out.closest_m, float(d.min()))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m bench.nav_crowd", description=__doc__.split("\n\n")[0])
+    p.add_argument("--robots", type=int, default=10)
+    p.add_argument("--world", default="turtlebot3_world")
+    p.add_argument("--seeds", type=int, default=12, help="seeds 1..N (default: 12)")
+    p.add_argument("--seconds", type=float, default=300.0, help="sim seconds per seed (default: 300)")
+    p.add_argument("--out", help="also write every seed's goals as JSON here")
+    args = p.parse_args(argv)
+    if args.robots < 1 or args.seeds < 1 or not args.seconds > 0:
+        p.error("--robots, --seeds and --seconds must be positive")
+    runs = []
+    for seed in range(1, args.seeds + 1):
+        run = run_seed(args.world, args.robots, args.seconds, seed)
+        runs.append(run)
+        mid = f"p50 {statistics.median(run.ratios):.3f}" if run.ratios else "no goal reached"
+        print(f"  seed {seed}: {len(run.ratios)} reached, failed {run.failed or 0}, {mid}", flush=True)
+    ratios = sorted(r for run in runs for r in run.ratios)
+    failed = sum(sum(run.failed.values()) for run in runs)
+    if not ratios:
+        print("nav_crowd: no goal reached", file=sys.stderr)
+        return 1
+    q = np.percentile(ratios, [50, 75, 95])
+    closest = min(run.closest_m for run in runs)
+    print(f"{args.robots} robots, {args.world}, {args.seeds} seeds x {args.seconds:g} s: {len(ratios)} goals reached, "
+          f"{failed} failed; time over the straight-line bound p50 {q[0]:.3f}, p75 {q[1]:.3f}, p95 {q[2]:.3f}; "
+          f"closest centres {closest:.3f} m")  # fmt: skip
+    if args.out:
+        with open(args.out, "w") as f:
+            json.dump([asdict(run) for run in runs], f)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,30 @@
+"""bench/nav_crowd.py runs, pools and repeats itself: a small crowd, a few seconds."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bench import nav_crowd
+
+
+def test_a_small_crowd_reaches_goals_and_a_seed_repeats(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "crowd.json"
+    assert nav_crowd.main(["--robots", "3", "--seeds", "2", "--seconds", "60", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "3 robots, turtlebot3_world, 2 seeds x 60 s:" in printed and "p50" in printed
+    runs = json.loads(out.read_text())
+    assert [r["seed"] for r in runs] == [1, 2]
+    assert all(len(r["ratios"]) >= 3 for r in runs)  # each burger reaches goals in a minute
+    assert all(ratio >= 1.0 for r in runs for ratio in r["ratios"])  # never under the straight line
+    assert min(r["closest_m"] for r in runs) > 0.2  # no two burgers' bodies meet
+    again = nav_crowd.run_seed("turtlebot3_world", 3, 60.0, 1)
+    assert again.ratios == runs[0]["ratios"]  # lockstep, seeded: the same goals in the same times
+
+
+def test_bad_arguments_are_one_line() -> None:
+    with pytest.raises(SystemExit) as e:
+        nav_crowd.main(["--robots", "0"])
+    assert e.value.code == 2
