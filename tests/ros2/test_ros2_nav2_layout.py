@@ -227,12 +227,17 @@ def test_the_nav2_files_name_topics_and_frames_the_daemon_has(ros_factory: Calla
         nodes["bt_navigator"]["ros__parameters"]["odom_topic"]: "nav_msgs::msg::dds_::Odometry_",
         glob["static_layer"]["map_topic"]: "nav_msgs::msg::dds_::OccupancyGrid_",
     }
-    g = tool.wait_graph(lambda g: set(wanted.items()) <= {(e.topic, e.type) for e in g if e.kind == "MP"})
+
+    def cmd_vel_types(g: list[Any]) -> set[str]:
+        return {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"}
+
+    # (the graph's tokens arrive in any order: wait for the subscription's too)
+    g = tool.wait_graph(lambda g: set(wanted.items()) <= {(e.topic, e.type) for e in g if e.kind == "MP"}
+                        and bool(cmd_vel_types(g)))  # fmt: skip
     assert set(wanted.items()) <= {(e.topic, e.type) for e in g if e.kind == "MP"}
     # the controller's cmd_vel, relative to its namespace, advertised as Jazzy's Nav2 sends it
     # (Twist: enable_stamped_cmd_vel is false there; both types drive)
-    assert {e.type for e in g if e.kind == "MS" and e.topic == "/TB3_1/cmd_vel"} == {
-        "geometry_msgs::msg::dds_::Twist_"}  # fmt: skip
+    assert cmd_vel_types(g) == {"geometry_msgs::msg::dds_::Twist_"}
     tf_topic = "/TB3_1/tf" if namespaced else "/tf"
     tree = transforms(step_until(c, tool.subscribe(tf_topic, TF))[0])
     children = {child: parent for parent, child in tree}
