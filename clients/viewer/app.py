@@ -94,6 +94,7 @@ class FrameStream:
         self.meta_version = -1
         self.nav = NavCursor()
         self.world_version = -1
+        self.clock_version = -1
 
     async def run(self) -> None:
         await self.ws.accept()
@@ -151,7 +152,11 @@ class FrameStream:
                 continue
             self.seq += 1
             extra = {"skipped": self.skipped, "build_ms": round(build_ms, 2)}
-            version, meta, data, stats = self.state.frame(self.view, self.seq, self.meta_version, extra)
+            head: dict[str, object] = {}
+            clock = self.state.clock_update(self.clock_version)
+            if clock is not None:  # about once a second: the daemon's clock changed
+                self.clock_version, head["clock"] = clock
+            version, meta, data, stats = self.state.frame(self.view, self.seq, self.meta_version, extra, head)
             build_ms = stats.build_ms
             if meta is not None:
                 await self.ws.send_text(meta.decode())

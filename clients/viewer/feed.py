@@ -1,6 +1,7 @@
 """The viewer's feed: a :class:`FleetState` kept current from a daemon over a
 :class:`~clients.api.FleetClient` (the world, presence, the fleet topics, navigation, and a
-thread that asks for the records of robots that appeared and for the paths they follow)."""
+thread that asks for the records of robots that appeared and for the paths they follow, and
+one that asks for the clock once a second)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,9 @@ from protocol.errors import FleetError
 
 log = logging.getLogger(__name__)
 
+#: Seconds between the feed's questions for the daemon's clock (its real-time factor).
+CLOCK_PERIOD = 1.0
+
 
 class Feed:
     """Connects a :class:`FleetState` to a :class:`FleetClient`: the world, presence, odom,
@@ -26,6 +30,7 @@ class Feed:
         self._stop = threading.Event()
         self._subs: list[Subscription] = []
         self._thread = threading.Thread(target=self._records_loop, name="fleet-view-records", daemon=True)
+        self._clock_thread = threading.Thread(target=self._clock_loop, name="fleet-view-clock", daemon=True)
         self._live_map: LiveMap | None = None
 
     def start(self) -> None:
@@ -42,6 +47,7 @@ class Feed:
         self._subs.append(self.client.on_plans(self.state.on_plan))
         self._subs.append(self.client.on_navigation_results(self.state.on_nav_result))
         self._thread.start()
+        self._clock_thread.start()
 
     def add_live_map(self) -> LiveMap:
         """Also build the occupancy map from the scans the feed receives (``fleet-view --map``)."""
@@ -88,10 +94,24 @@ class Feed:
         except FleetError as e:
             log.debug("could not ask for the robots' paths: %s", e)
 
+    def _clock_loop(self) -> None:
+        """Ask for the clock (``P/clock``) once a second: a query rather than the topic, which
+        a daemon publishes at 10 Hz of sim time (10 000 a second at ``--rtf 1000``, and none
+        while paused)."""
+        while True:
+            try:
+                self.state.set_clock(self.client.clock())
+            except FleetError as e:
+                log.debug("could not ask for the clock: %s", e)
+                self.state.set_clock(None)
+            if self._stop.wait(CLOCK_PERIOD):
+                return
+
     def close(self) -> None:
         self._stop.set()
         for s in self._subs:
             s.close()
         self._subs.clear()
-        if self._thread.is_alive():
-            self._thread.join(timeout=5.0)
+        for t in (self._thread, self._clock_thread):
+            if t.is_alive():
+                t.join(timeout=5.0)

@@ -10,7 +10,8 @@ A frame is one binary websocket message (little-endian)::
 
     u32      header length H (a multiple of 4)
     H bytes  JSON header, space-padded: seq, meta, t, n, scans, scan_points, trails,
-             trail_points, beam_step, stats
+             trail_points, beam_step, stats, and ``clock`` when the daemon's clock changed
+             since the page's last frame (:meth:`FleetState.clock_update`)
     f32[5n]  x, y, yaw, v, w of every robot in the order of the current meta (v, w are NaN
              until its first odometry; x, y, yaw are then its spawn pose)
     u32[s]   robot index of each scan      u32[s]  its point count
@@ -46,7 +47,7 @@ from clients.viewer.decimate import (
 )
 from clients.viewer.navigation import NavBoard, NavCursor
 from clients.viewer.robot import TRAIL_MIN_STEP, TRAIL_SECONDS, KeptScan, RobotState
-from protocol.control import RobotRecord, WorldInfo
+from protocol.control import Clock, RobotRecord, WorldInfo
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry
 from protocol.navigation import FleetNavigation, NavigationPath, NavigationResult
 
@@ -119,6 +120,8 @@ class FleetState:
         self.odom_count = 0
         self.scan_count = 0
         self.sim_time = 0.0
+        self._clock: dict[str, float | bool] | None = None  # the page's view of the daemon's clock
+        self._clock_version = 0
 
     def set_world(self, world: WorldInfo) -> None:
         """The daemon's world; pages are sent it again when it changed (a daemon restarted with
@@ -259,6 +262,34 @@ class FleetState:
             self.nav.prune(time.monotonic())
             return self.nav.updates(cursor)
 
+    # -- the daemon's clock (its real-time factor), asked for about once a second ------------
+
+    def set_clock(self, clock: Clock | None) -> None:
+        """The daemon's latest clock, or None when it did not answer: what the page's status
+        line shows of it (achieved and target real-time factor, falling behind, paused)."""
+        shown: dict[str, float | bool] | None = None
+        if clock is not None:
+            shown = {
+                "rtf": round(clock.real_time_factor, 3),
+                "target": clock.target_real_time_factor,
+                "behind_s": round(clock.behind_s, 1),
+                "falling_behind": clock.falling_behind,
+                "paused": clock.paused,
+                "lockstep": clock.lockstep,
+            }
+        with self._lock:
+            if shown != self._clock:
+                self._clock = shown
+                self._clock_version += 1
+
+    def clock_update(self, known: int) -> tuple[int, dict[str, float | bool] | None] | None:
+        """The clock's version and what to show of it (None: unknown), or None when a page
+        that has version ``known`` has it already."""
+        with self._lock:
+            if known == self._clock_version:
+                return None
+            return self._clock_version, self._clock
+
     # -- records (name, model, footprint), fetched off the zenoh threads --------------------
 
     def missing_records(self) -> int:
@@ -369,9 +400,14 @@ class FleetState:
         return self._meta_json
 
     def frame(
-        self, view: View, seq: int = 0, known_meta: int = -1, extra: dict[str, float] | None = None
+        self,
+        view: View,
+        seq: int = 0,
+        known_meta: int = -1,
+        extra: dict[str, float] | None = None,
+        fields: dict[str, object] | None = None,
     ) -> tuple[int, bytes | None, bytes, FrameStats]:
-        """Build one frame for ``view``.
+        """Build one frame for ``view`` (``fields``: more fields of its header).
 
         Returns the meta version the frame refers to, the meta message if that is not
         ``known_meta`` (send it first), the frame bytes and what went into it.
@@ -418,6 +454,7 @@ class FleetState:
             "trail_points": stats.trail_points,
             "beam_step": step,
             "stats": {"odom": self.odom_count, "scan": self.scan_count, **(extra or {})},
+            **(fields or {}),
         }
         parts = [
             poses.tobytes(),

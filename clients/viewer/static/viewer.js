@@ -52,6 +52,7 @@
   };
 
   const stats = {
+    clock: null, // the daemon's clock: {rtf, target, behind_s, falling_behind, paused, lockstep}
     frames: 0, fps: 0, msgs: 0, robots: 0, scans: 0, scanPoints: 0, trails: 0, trailPoints: 0,
     beamStep: 1, bytes: 0, drawMs: 0, simTime: 0, seq: 0, skipped: 0, connected: false,
     world: "", metaVersion: -1, navMsgs: 0,
@@ -116,6 +117,7 @@
     S.ws = ws;
     ws.onopen = () => {
       stats.connected = true;
+      stats.clock = null; // the new connection's first frame carries it
       // a new connection starts from nothing: the server sends every goal and path again,
       // and goals that ended while the page was away must not linger
       S.nav.clear();
@@ -138,6 +140,7 @@
         return;
       }
       const f = decodeFrame(ev.data);
+      if ("clock" in f) stats.clock = f.clock; // only when it changed (about once a second)
       if (!S.meta || f.meta !== S.meta.version) return; // cannot happen: meta comes first
       S.frame = f;
       stats.msgs += 1;
@@ -556,9 +559,12 @@
     if (drawTimes.length < 2) stats.fps = 0;
     $("conn").classList.toggle("off", !stats.connected);
     const f = S.frame;
+    const c = stats.connected ? stats.clock : null;
     $("status-text").textContent = stats.connected
-      ? `t ${fmt(stats.simTime, 1)} s · ${stats.robots} robots · ${fmt(stats.fps, 1)} fps`
+      ? `t ${fmt(stats.simTime, 1)} s · ${stats.robots} robots · ${fmt(stats.fps, 1)} fps${clockText(c)}`
       : "disconnected, retrying…";
+    $("status").classList.toggle("behind", !!(c && c.falling_behind && !c.paused));
+    $("status").classList.toggle("paused", !!(c && c.paused));
     if (f) {
       const step = f.beam_step > 1 ? `, every ${f.beam_step}${ordinal(f.beam_step)} beam` : "";
       $("perf").textContent =
@@ -567,6 +573,16 @@
         `trails ${f.trails} robots, ${f.trail_points} points\n` +
         `server: build ${fmt(f.stats.build_ms, 1)} ms · skipped ${f.stats.skipped || 0} ticks`;
     }
+  }
+  // the daemon's clock (fleet clock's real-time factor): achieved / target, falling behind, paused
+  const rtfText = (v) => (v >= 100 ? fmt(v, 0) : v >= 10 ? fmt(v, 1) : fmt(v, 2));
+  function clockText(c) {
+    if (!c) return "";
+    if (c.paused) return " · paused";
+    if (c.lockstep) return " · lockstep";
+    const target = c.target > 0 ? ` / ${+c.target.toFixed(2)}` : " (unpaced)";
+    const behind = c.falling_behind ? ` · falling behind ${fmt(c.behind_s, 1)} s` : "";
+    return ` · RTF ${rtfText(c.rtf)}${target}${behind}`;
   }
   const ordinal = (n) => (n % 10 === 2 && n !== 12 ? "nd" : n % 10 === 3 && n !== 13 ? "rd" : "th");
 
