@@ -25,12 +25,13 @@ import sys
 from dataclasses import asdict, dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 from protocol.control import SpawnRequest
 from protocol.navigation import NavigateRequest
-from simd.core.models import MODELS
+from simd.core.models import MODELS, RobotModel
 from simd.core.sim import SimConfig, Simulation
-from simd.core.worldfile import load_world
+from simd.core.worldfile import WorldGeometry, load_world
 from simd.nav.flood import reachable
 from simd.nav.navigator import Navigator
 
@@ -47,18 +48,24 @@ class SeedRun:
     closest_m: float
 
 
+def goal_points(nav: Navigator, world: WorldGeometry, model: RobotModel) -> npt.NDArray[np.float64]:
+    """The centres of the costmap's cells a ``model`` reaches from the world's default spawn,
+    with 5 cm to spare: where robots are spawned and sent."""
+    cm = nav.costmap
+    start = cm.grid.cell(*world.default_spawn[:2])
+    if start is None:
+        raise SystemExit(f"nav_crowd: {world.name}'s default spawn is off its map")
+    ok = reachable(np.isfinite(cm.costs(model)), start) & (cm.clearance >= model.radius + 0.05)
+    rows, cols = np.nonzero(ok)
+    return cm.grid.centres(np.stack([rows, cols], axis=1).astype(np.int32))
+
+
 def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun:
     world = load_world(world_name)
     sim = Simulation(world, SimConfig(seed=0))
     nav = Navigator(world, sim.config.lidar, sim.robots)
     burger = MODELS["burger"]
-    cm = nav.costmap
-    start = cm.grid.cell(*world.default_spawn[:2])
-    if start is None:
-        raise SystemExit(f"nav_crowd: {world_name}'s default spawn is off its map")
-    ok = reachable(np.isfinite(cm.costs(burger)), start) & (cm.clearance >= burger.radius + 0.05)
-    rows, cols = np.nonzero(ok)
-    points = cm.grid.centres(np.stack([rows, cols], axis=1).astype(np.int32))
+    points = goal_points(nav, world, burger)
     rng = np.random.default_rng(seed)
     names: list[str] = []
     for _ in range(100_000):

@@ -395,16 +395,21 @@ def test_the_map_layer_grows_under_the_robots(
     browser.wait_for("viewerStats.mapScans >= 10", 10)  # the page fetched it too, and draws it
 
 
+def _wait_serving(url: str, timeout: float = 15.0) -> None:
+    """Until the viewer's server answers: it listens a moment after it prints its address."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            urllib.request.urlopen(url + "api/counts", timeout=5).close()
+            return
+        except urllib.error.URLError:
+            assert time.monotonic() < deadline, f"{url} did not answer within {timeout:g} s"
+            time.sleep(0.1)
+
+
 def test_without_map_there_is_no_layer(daemon: Daemon, viewer_factory: Callable[..., Viewer]) -> None:
     v = viewer_factory(daemon)
-    deadline = time.monotonic() + 15
-    while True:  # the server listens a moment after it prints its address
-        try:
-            urllib.request.urlopen(v.url + "api/counts", timeout=5).close()
-            break
-        except urllib.error.URLError:
-            assert time.monotonic() < deadline
-            time.sleep(0.1)
+    _wait_serving(v.url)
     with pytest.raises(urllib.error.HTTPError) as e:
         urllib.request.urlopen(v.url + "map.png", timeout=5)
     assert e.value.code == 404
@@ -437,14 +442,7 @@ def test_a_daemon_restarted_in_another_world_is_drawn_in_it(
 
     first = start_daemon(tmp_path)
     v = viewer_factory(first)
-    deadline = time.monotonic() + 15
-    while True:  # the server listens a moment after it prints its address
-        try:
-            urllib.request.urlopen(v.url + "api/counts", timeout=5).close()
-            break
-        except urllib.error.URLError:
-            assert time.monotonic() < deadline
-            time.sleep(0.1)
+    _wait_serving(v.url)
     try:
         assert _world_names(v.url, "turtlebot3_world")[:1] == ["turtlebot3_world"]
     finally:

@@ -260,20 +260,15 @@ def test_ten_robots_in_turtlebot3_world_keep_reaching_goals() -> None:
     """A crowd in the open (ten burgers among turtlebot3_world's pillars, a new goal as soon as
     one ends): no robot hangs on a goal (one that gets nowhere ends ``blocked``, it does not
     drive on forever), and every robot gets somewhere again and again."""
+    from bench.nav_crowd import goal_points
     from simd.core.models import MODELS
     from simd.core.worldfile import load_world
-    from simd.nav.flood import reachable
 
     world = load_world("turtlebot3_world")
     sim = Simulation(world, SimConfig(seed=0))
     nav = Navigator(world, sim.config.lidar, sim.robots)
     burger = MODELS["burger"]
-    cm = nav.costmap
-    start = cm.grid.cell(*world.default_spawn[:2])
-    assert start is not None
-    ok = reachable(np.isfinite(cm.costs(burger)), start) & (cm.clearance >= burger.radius + 0.05)
-    rows, cols = np.nonzero(ok)
-    points = cm.grid.centres(np.stack([rows, cols], axis=1).astype(np.int32))
+    points = goal_points(nav, world, burger)
     rng = np.random.default_rng(8)  # (a crowd that locked up for good before the way's corners were kept)
     names: list[str] = []
     while len(names) < 10:
