@@ -40,12 +40,28 @@ TOLERANCE_M = 0.1
 MIN_GOAL_M, MIN_APART_M = 1.0, 0.7
 
 
+#: a driving robot slower than this (m/s) and turning faster than this (rad/s) turns on the spot
+STILL_V, TURNING_W = 0.02, 0.3
+
+
 @dataclass
 class SeedRun:
     seed: int
     ratios: list[float]
     failed: dict[str, int]
     closest_m: float
+    #: for each reached goal (as ``ratios``): seconds in each state, and the bound
+    parts: list[dict[str, float]]
+
+
+def _doing(state: str, command: tuple[float, float]) -> str:
+    """What a robot does, as its state says, with ``driving`` split by its command."""
+    if state != "driving":
+        return state
+    v, w = command
+    if abs(v) >= STILL_V:
+        return "moving"
+    return "turning" if abs(w) > TURNING_W else "standing"
 
 
 def goal_points(nav: Navigator, world: WorldGeometry, model: RobotModel) -> npt.NDArray[np.float64]:
@@ -92,16 +108,25 @@ def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun
 
     for name in names:
         send(name)
-    out = SeedRun(seed, [], {}, math.inf)
-    for k in range(int(seconds / sim.config.dt)):
+    out = SeedRun(seed, [], {}, math.inf, [])
+    spent: dict[str, dict[str, float]] = {name: {} for name in names}
+    dt = sim.config.dt
+    for k in range(int(seconds / dt)):
         nav.step(sim.robots, sim.tick, sim.time)
         nav.apply(sim.robots, sim.command_rows)
         nav.observe(sim.step())
+        for name in names:
+            robot = nav.robots[name]
+            if robot.active:
+                doing = _doing(robot.state, robot.command)
+                spent[name][doing] = spent[name].get(doing, 0.0) + dt
         for r in nav.take_events().results:
             if r.status == "reached":
                 out.ratios.append(r.navigation_time / bound[r.robot])
+                out.parts.append({**spent[r.robot], "bound": bound[r.robot]})
             else:
                 out.failed[r.reason] = out.failed.get(r.reason, 0) + 1
+            spent[r.robot] = {}
             send(r.robot)
         if k % 3 == 0 and robots > 1:
             t = sim.robots
@@ -136,10 +161,23 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{args.robots} robots, {args.world}, {args.seeds} seeds x {args.seconds:g} s: {len(ratios)} goals reached, "
           f"{failed} failed; time over the straight-line bound p50 {q[0]:.3f}, p75 {q[1]:.3f}, p95 {q[2]:.3f}; "
           f"closest centres {closest:.3f} m")  # fmt: skip
+    parts = [(r, p) for run in runs for r, p in zip(run.ratios, run.parts, strict=True)]
+    middle = [p for r, p in parts if abs(r - q[0]) <= 0.1]
+    print(_where_time_goes("goals within 0.1 of the median", middle))
+    print(_where_time_goes("all reached goals", [p for _, p in parts]))
     if args.out:
         with open(args.out, "w") as f:
             json.dump([asdict(run) for run in runs], f)
     return 0
+
+
+def _where_time_goes(label: str, parts: list[dict[str, float]]) -> str:
+    """One line: mean seconds per goal in each state, the bound first."""
+    if not parts:
+        return f"  {label}: none"
+    keys = sorted({k for p in parts for k in p} - {"bound"}, key=lambda k: -sum(p.get(k, 0.0) for p in parts))
+    mean = {k: sum(p.get(k, 0.0) for p in parts) / len(parts) for k in ["bound", *keys]}
+    return f"  {label} ({len(parts)}), mean s per goal: " + ", ".join(f"{k} {v:.2f}" for k, v in mean.items())
 
 
 if __name__ == "__main__":

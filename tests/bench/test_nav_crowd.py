@@ -20,6 +20,12 @@ def test_a_small_crowd_reaches_goals_and_a_seed_repeats(tmp_path: Path, capsys: 
     assert all(len(r["ratios"]) >= 3 for r in runs)  # each burger reaches goals in a minute
     assert all(ratio >= 1.0 for r in runs for ratio in r["ratios"])  # never under the straight line
     assert min(r["closest_m"] for r in runs) > 0.2  # no two burgers' bodies meet
+    for r in runs:  # where each goal's time went: states that add up to the goal's time
+        for ratio, parts in zip(r["ratios"], r["parts"], strict=True):
+            spent = {k: v for k, v in parts.items() if k != "bound"}
+            assert set(spent) <= {"planning", "moving", "turning", "standing", "waiting", "yielding", "blocked"}
+            assert sum(spent.values()) == pytest.approx(ratio * parts["bound"], abs=0.07)
+    assert "goals within 0.1 of the median" in printed and "all reached goals" in printed
     again = nav_crowd.run_seed("turtlebot3_world", 3, 60.0, 1)
     assert again.ratios == runs[0]["ratios"]  # lockstep, seeded: the same goals in the same times
 

@@ -338,3 +338,78 @@ def test_a_goal_that_gets_no_nearer_fails_blocked_whatever_its_states() -> None:
     assert result is not None and (result.status, result.reason) == ("failed", "blocked"), result
     assert result.message == f"no nearer the goal for {STALL_PATIENCES * patience:g} s, waiting included"
     assert result.navigation_time == pytest.approx(STALL_PATIENCES * patience, abs=0.11)
+
+
+def test_a_robot_standing_behind_another_says_it_waits_and_for_whom() -> None:
+    """Feedback says ``waiting`` (another robot holds the way ahead) whenever a robot stands
+    for another, also when it has taken its next step and the other is still leaving the cell
+    (it used to say ``driving`` while it stood there). Here ``b`` comes up behind ``a``, which
+    first turns round on the spot."""
+    world = open_world()
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots)
+    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=math.pi))
+    sim.spawn(SpawnRequest(name="b", x=-0.7, y=0.0, yaw=0.0))
+    model = sim.robots.robots[0].model
+    nav.goal("a", model, NavigateRequest(x=2.5, y=0.0, tolerance=0.1), 0.0)
+    nav.goal("b", model, NavigateRequest(x=2.0, y=0.0, tolerance=0.1), 0.01)
+    standing: list[str] = []  # b's state at each control step it stood still on its way
+    told: set[str] = set()  # whom b's feedback named while it waited
+    ended: dict[str, str] = {}
+    for _ in range(int(30 / sim.config.dt)):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        events = nav.take_events()
+        told |= {fb.other for fb in events.feedback if fb.robot == "b" and fb.state == "waiting"}
+        ended |= {r.robot: r.status for r in events.results}
+        b = nav.robots["b"]
+        if b.active and b.state not in ("planning", "") and b.command == (0.0, 0.0):
+            standing.append(b.state)
+        if len(ended) == 2:
+            break
+    assert ended == {"a": "reached", "b": "reached"}
+    assert len(standing) >= 5, "b never stood behind a: the scene does not test what it says"
+    assert set(standing) == {"waiting"}, standing
+    assert told == {"a"}
+
+
+def test_a_goal_beside_a_robot_is_reached_within_its_tolerance() -> None:
+    """A parked robot holds a cell the robot's body would need at its goal point, though the
+    bodies would not touch: the robot stops short of the point, within the goal's tolerance,
+    and the goal is reached (it used to wait there until the goal ended ``blocked``)."""
+    world = open_world()
+    robots: list[Robot] = [("a", (-1.5, 0.0, 0.0), (1.12, 0.0))]
+    results, closest, sim = _drive_beside(world, robots, parked=(1.42, 0.0), seconds=40.0)
+    reached_all(results, robots, sim)
+    assert results["a"].navigation_time < 20.0  # no waiting for a patience to end it
+    assert closest > TOUCH_M
+
+
+def _drive_beside(
+    world: WorldGeometry, robots: list[Robot], parked: tuple[float, float], seconds: float
+) -> tuple[dict[str, NavigationResult], float, Simulation]:
+    """As ``drive``, with one more robot parked at ``parked`` (no goal)."""
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots, NavConfig(patience=20.0))
+    sim.spawn(SpawnRequest(name="parked", x=parked[0], y=parked[1], yaw=0.0))
+    for name, (x, y, yaw), _ in robots:
+        sim.spawn(SpawnRequest(name=name, x=x, y=y, yaw=yaw))
+    for name, _, (gx, gy) in robots:
+        robot = sim.find(name)
+        assert robot is not None
+        nav.goal(name, robot.model, NavigateRequest(x=gx, y=gy, tolerance=0.1), sim.time)
+    results: dict[str, NavigationResult] = {}
+    closest = math.inf
+    for _ in range(int(seconds / sim.config.dt)):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        for r in nav.take_events().results:
+            results[r.robot] = r
+        t = sim.robots
+        d = np.hypot(t.x[:, None] - t.x[None, :], t.y[:, None] - t.y[None, :]) + np.eye(len(t.x)) * 9.0
+        closest = min(closest, float(d.min()))
+        if len(results) == len(robots):
+            break
+    return results, closest, sim
