@@ -15,13 +15,13 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
 from protocol.control import MODELS as MODEL_NAMES
 from protocol.control import SpawnRequest
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
 from simd.core import drive, sensor_model
+from simd.core.arrays import F32, F64, I64
 from simd.core.ghosts import GhostColumns, Ghosts
 from simd.core.lidar import LidarSpec, StaticScene, cast, outline_segments
 from simd.core.models import MODELS, RobotModel
@@ -30,12 +30,6 @@ from simd.core.robots import Robot, RobotTable
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
-I64 = npt.NDArray[np.int64]
-
-#: Odometry covariance diagonals of gazebo_ros_diff_drive (x, y, z, roll, pitch, yaw).
-ODOM_COVARIANCE_DIAGONAL = (1e-5, 1e-5, 1e12, 1e12, 1e12, 1e-3)
 #: Scans are batched: a scan phase takes up to this many robots before the next phase opens.
 #: Few robots then scan in one lidar call per 5 Hz period (the kernel's per-call overhead
 #: dominates small batches); many robots spread evenly over the six phases of a period.

@@ -61,6 +61,7 @@ from simd.engine.ports import (
     Result,
     RobotList,
     ScanRow,
+    SimulationSetup,
     Spawned,
     StepResult,
     WorldReset,
@@ -166,6 +167,7 @@ class Engine:
         self.sim = sim
         #: drives the robots that have a goal (simd/nav); None: no navigation (``--no-nav``)
         self.navigator = navigator
+        self.setup = SimulationSetup(sim.config.dt, sim.config.lidar, sim.world, navigator is not None)  # for adapters
         self.rtf = rtf
         self.lockstep = lockstep
         self.paused = paused or lockstep

@@ -33,7 +33,7 @@ from protocol.navigation import (
 )
 from simd.adapters.fleet.requests import Pending, reply_format
 from simd.adapters.zenoh_entities import Interest, undeclare_all
-from simd.nav.navigator import NavEvents
+from simd.nav.report import NavEvents
 
 log = logging.getLogger(__name__)
 

@@ -23,9 +23,8 @@ import numpy.typing as npt
 
 from protocol.frames import frame_id as robot_frame
 from protocol.messages import Time
+from simd.core.arrays import F32
 from simd.core.snapshot import TickSnapshot
-
-F32 = npt.NDArray[np.float32]
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 _STAMP = struct.Struct("<iI")

@@ -24,8 +24,8 @@ import numpy.typing as npt
 
 from protocol.frames import Transform
 from simd.adapters.ros2.cdr import ENCAPSULATION, frames_blob, stamp, write_poses, write_stamps
+from simd.core.arrays import F64
 
-F64 = npt.NDArray[np.float64]
 #: (parent, child) of a transform
 Frames = tuple[str, str]
 #: the x, y and yaw columns of one transform of every robot of a tick
