@@ -18,10 +18,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from simd.core.arrays import F64, I64
 from simd.core.models import RobotModel
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 #: Table generations, unique in the process: a table that was replaced (a new simulation) never
 #: shows a generation another table had, so a memo keyed on it cannot be fooled.

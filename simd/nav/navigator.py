@@ -44,6 +44,7 @@ from protocol.navigation import (
     NavigationResult,
     NavigationState,
 )
+from simd.core.arrays import F64, I64
 from simd.core.lidar import LidarSpec
 from simd.core.models import MODELS, RobotModel
 from simd.core.robots import RobotTable
@@ -61,9 +62,6 @@ from simd.nav.traffic import FREE
 
 log = logging.getLogger(__name__)
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 __all__ = ["NavConfig", "NavEvents", "NavRobot", "Navigator"]
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
 from protocol.control import Pose2D
 from protocol.messages import Time
@@ -22,8 +21,7 @@ from protocol.navigation import (
     NavigationResult,
     RobotNavigation,
 )
-
-F64 = npt.NDArray[np.float64]
+from simd.core.arrays import F64
 
 
 @dataclass

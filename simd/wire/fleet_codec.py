@@ -11,13 +11,10 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 
 from protocol.messages import FleetOdometry, FleetScans, Time
+from simd.core.arrays import F32, F64
 from simd.core.lidar import LidarSpec
-
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
 
 _encoder = msgspec.msgpack.Encoder()
 
