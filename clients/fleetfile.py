@@ -50,10 +50,6 @@ class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
 SHIPPED_FLEETS = ShippedFiles("fleet", FLEETS_DIR, FleetFileError)
 
 
-def list_fleets() -> list[str]:
-    return SHIPPED_FLEETS.names()
-
-
 def load_fleet(name_or_path: str) -> list[FleetRobot]:
     """Load a shipped fleet by bare name or any fleet file by path; raise FleetFileError."""
     text, source = SHIPPED_FLEETS.read(name_or_path)

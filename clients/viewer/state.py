@@ -376,11 +376,6 @@ class FleetState:
             }
         )
 
-    def meta_json(self) -> tuple[int, bytes]:
-        """The current version and its meta message (robots in frame order)."""
-        with self._lock:
-            return self._version, self._meta_locked()
-
     def _meta_locked(self) -> bytes:
         if not self._meta_json:
             footprints: dict[tuple[float, ...], int] = {}

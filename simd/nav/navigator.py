@@ -9,8 +9,8 @@ ten thousand zenoh messages a second each way), and it runs in tick order, so a 
 Every tick it re-applies each navigating robot's command (an idle teleop's zeros never stop a
 robot on its way); every ``control_every`` ticks (10 Hz) it does the work:
 
-1. every robot holds the floor under it (its *floor*: floor.py on a grid map, open_floor.py
-   elsewhere), goal or not;
+1. every robot holds the floor under it (floor.py: a grid map's own cells, or cells laid
+   over an open world), goal or not;
 2. the scans since the last step give each robot's room ahead (lidar_guard.py): the first
    thing the map and the fleet do not explain stops it, and if that lasts, it marks what it
    sees and plans again;

@@ -3,7 +3,7 @@
 ``P/odometry`` and ``P/scans`` carry what the per-robot topics carry, column by column, for a
 client that follows every robot (a training loop, a fleet controller, a viewer of a thousand
 robots). Their cost to a subscriber is per message, not per robot: one message a tick instead
-of one per robot. Each is built only while somebody subscribes (see ``net.Bridge``), from the
+of one per robot. Each is built only while somebody subscribes (simd/adapters/fleet/publisher.py), from the
 same arrays the per-robot messages come from, so the two views of a tick agree to the bit.
 """
 

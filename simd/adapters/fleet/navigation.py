@@ -27,7 +27,6 @@ from protocol.keys import Keys
 from protocol.navigation import (
     CancelRequest,
     NavigateRequest,
-    NavigationPath,
     NavigationRequest,
     NavigationStateRequest,
 )
@@ -132,10 +131,6 @@ class NavigationKeys:
     def forget(self, robot: str) -> None:
         with self._lock:
             self._plans.pop(robot, None)
-
-    def latest_plans(self) -> dict[str, NavigationPath]:
-        with self._lock:
-            return {r: msgspec.msgpack.decode(p, type=NavigationPath) for r, p in self._plans.items()}
 
     def close(self) -> None:
         undeclare_all(self._entities)
