@@ -50,14 +50,14 @@ from clients.fleet_output import (
 )
 from clients.fleetfile import FleetRobot
 from clients.spawn_plan import SpawnPlan, UsageError, plan_spawn
+from fleetcommon.zenoh_config import (
+    ZenohOptions,
+    options_from_args,
+)
 from protocol.control import Clock, RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.programs import runnable
-from protocol.zenoh_config import (
-    ZenohOptions,
-    options_from_args,
-)
 
 EXIT_OK = 0
 EXIT_REFUSED = 1

@@ -23,7 +23,7 @@ import msgspec
 import msgspec.yaml
 import yaml
 
-from protocol.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
+from fleetcommon.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
 
 FLEETS_DIR = Path(__file__).parent / "fleets"
 

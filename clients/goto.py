@@ -25,8 +25,8 @@ import yaml
 from clients.api import FleetClient
 from clients.navigation import Goal
 from clients.spawn_plan import UsageError
+from fleetcommon.files import split_location, yaml_syntax_problem
 from protocol.errors import FleetError
-from protocol.files import split_location, yaml_syntax_problem
 from protocol.navigation import NavigateRequest, NavigationFeedback, NavigationResult
 
 EXIT_OK = 0

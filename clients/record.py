@@ -36,12 +36,12 @@ from clients.api import FleetClient
 from clients.bag import BagExists, BagWriter
 from clients.fleet_args import add_daemon_args
 from clients.follow import drain, follow, stop_on_signals
+from fleetcommon.zenoh_config import options_from_args
 from protocol import FleetError
 from protocol.errors import ErrorCode
 from protocol.frames import static_transforms
 from protocol.messages import FleetOdometry, FleetScans
 from protocol.ros_domain import domain_id
-from protocol.zenoh_config import options_from_args
 
 ROBOT_TOPICS = ("odom", "scan")
 FLEET_TOPICS = ("tf", "tf_static", "clock")

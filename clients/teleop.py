@@ -36,11 +36,11 @@ from prompt_toolkit.styles import Style
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
 from clients.teleop_model import RATE_HZ, Seen, TeleopState, nearest_obstacle, screen, status
+from fleetcommon.zenoh_config import ZenohOptions, options_from_args
 from protocol.control import RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import LaserScan, Odometry
-from protocol.zenoh_config import ZenohOptions, options_from_args
 
 __all__ = ["Teleop", "build_parser", "main"]  # the model: clients/teleop_model.py
 

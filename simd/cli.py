@@ -14,12 +14,12 @@ import sys
 from collections.abc import Mapping
 from types import FrameType
 
+from fleetcommon.zenoh_config import add_zenoh_args
 from protocol.control import DEFAULT_DAEMON_ID
 from protocol.errors import FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
 from protocol.ros_domain import domain_id
-from protocol.zenoh_config import add_zenoh_args
 from simd.adapters.zenoh_entities import zenoh_too_old
 from simd.daemon import CheckedFlags, Refused
 

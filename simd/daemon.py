@@ -19,15 +19,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from fleetcommon.zenoh_config import exposed_without_authentication, options_from_args, zenoh_error_text
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import Keys
-from protocol.zenoh_config import exposed_without_authentication, options_from_args, zenoh_error_text
 
 if TYPE_CHECKING:
     import zenoh
 
+    from fleetcommon.zenoh_config import ZenohOptions
     from protocol.navigation import NavigateRequest
-    from protocol.zenoh_config import ZenohOptions
     from simd.core.sim import Simulation
     from simd.core.worldfile import WorldGeometry
     from simd.engine import Engine

@@ -13,8 +13,8 @@ import numpy as np
 import numpy.typing as npt
 
 from clients.mapping.explore import wavefront
+from fleetcommon.mapfile import OccupancyMap
 from protocol.control import WorldInfo
-from protocol.mapfile import OccupancyMap
 
 F64 = npt.NDArray[np.float64]
 

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from protocol.mapfile import FREE, OCCUPIED, UNKNOWN, OccupancyMap
+from fleetcommon.mapfile import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 
 F32 = npt.NDArray[np.float32]
 F64 = npt.NDArray[np.float64]

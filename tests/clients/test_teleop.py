@@ -25,8 +25,8 @@ from clients import FleetClient, wait_until
 from clients import teleop as teleop_mod
 from clients.teleop import Teleop
 from clients.teleop_model import LIN_RAMP
+from fleetcommon.zenoh_config import ZenohOptions
 from protocol import Twist
-from protocol.zenoh_config import ZenohOptions
 from tests.conftest import ROOT, Daemon, free_port, simd_command
 
 BURGER = (0.22, 2.84)

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from protocol.zenoh_config import zenoh_error_text
+from fleetcommon.zenoh_config import zenoh_error_text
 
 DEFAULT_ROUTER = "tcp/localhost:7447"
 SESSION_CONFIG_URI = "ZENOH_SESSION_CONFIG_URI"
