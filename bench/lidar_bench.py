@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64
+from fleetcommon.arrays import F64
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 

@@ -45,7 +45,7 @@ import numpy.typing as npt
 from bench.measure import proc_cpu_seconds
 from bench.processes import DaemonProc, start_daemon
 from bench.report import machine_info, machine_line
-from simd.core.arrays import F64
+from fleetcommon.arrays import F64
 
 BURGER_V = 0.22
 TOLERANCE_M = 0.1

@@ -18,8 +18,8 @@ from typing import Protocol
 
 import numpy as np
 
+from fleetcommon.arrays import F64, I64
 from simd.core import native
-from simd.core.arrays import F64, I64
 
 _native, _why = native.load("drive")
 

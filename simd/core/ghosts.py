@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.models import MODELS, RobotModel
 from simd.core.physics import Physics
 

@@ -12,7 +12,7 @@ import numpy.typing as npt
 import pymunk
 import pymunk.batch
 
-from simd.core.arrays import F64
+from fleetcommon.arrays import F64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 

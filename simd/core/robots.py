@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.models import RobotModel
 
 #: Table generations, unique in the process: a table that was replaced (a new simulation) never

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from fleetcommon.arrays import F32
 from simd.core import native
-from simd.core.arrays import F32
 from simd.core.lidar import LidarSpec
 
 _native, _why = native.load("scannoise")

@@ -16,12 +16,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fleetcommon.arrays import F32, F64, I64
 from protocol.control import MODELS as MODEL_NAMES
 from protocol.control import SpawnRequest
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
 from simd.core import drive, sensor_model
-from simd.core.arrays import F32, F64, I64
 from simd.core.ghosts import GhostColumns, Ghosts
 from simd.core.lidar import LidarSpec, StaticScene, cast, outline_segments
 from simd.core.models import MODELS, RobotModel

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from simd.core.arrays import F32, F64, I64
+from fleetcommon.arrays import F32, F64, I64
 from simd.core.models import RobotModel
 
 

@@ -18,7 +18,7 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import I64
+from fleetcommon.arrays import I64
 from simd.core.robots import RobotTable
 from simd.core.snapshot import TickSnapshot
 from simd.engine.ports import ObservedArrays

@@ -19,10 +19,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from fleetcommon.arrays import F32, F64
 from protocol.control import Clock
 from protocol.errors import FleetError
 from protocol.navigation import NavigateReply, NavigationResult, NavigationState
-from simd.core.arrays import F32, F64
 from simd.core.ghosts import GhostColumns
 from simd.core.lidar import LidarSpec
 from simd.core.snapshot import RobotState, TickSnapshot

@@ -52,8 +52,8 @@ from typing import Protocol, cast
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64, I64
 from simd.core import native
-from simd.core.arrays import F32, F64, I64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.costmap import Grid, clearance_field

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F32, F64
+from fleetcommon.arrays import F32, F64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 

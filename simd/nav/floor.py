@@ -19,7 +19,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import CellGraph, body_radius, cell_size_for

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simd.core.arrays import F64
+from fleetcommon.arrays import F64
 
 LOOKAHEAD_M = 0.2
 #: turn in place when the pursuit point is further off the heading than this

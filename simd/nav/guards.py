@@ -14,7 +14,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.robots import RobotTable
 from simd.nav.floor import Floor
 from simd.nav.robot import NavRobot

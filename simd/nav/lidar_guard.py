@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F32, F64
+from fleetcommon.arrays import F32, F64
 from simd.core.lidar import LidarSpec
 
 #: the corridor is this much wider than the robot on each side

@@ -33,6 +33,7 @@ import msgspec
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from protocol.errors import ErrorCode, FleetError
 from protocol.messages import Time
 from protocol.navigation import (
@@ -44,7 +45,6 @@ from protocol.navigation import (
     NavigationResult,
     NavigationState,
 )
-from simd.core.arrays import F64, I64
 from simd.core.lidar import LidarSpec
 from simd.core.models import MODELS, RobotModel
 from simd.core.robots import RobotTable

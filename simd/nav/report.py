@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fleetcommon.arrays import F64
 from protocol.control import Pose2D
 from protocol.messages import Time
 from protocol.navigation import (
@@ -21,7 +22,6 @@ from protocol.navigation import (
     NavigationResult,
     RobotNavigation,
 )
-from simd.core.arrays import F64
 
 
 @dataclass

@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fleetcommon.arrays import F64
 from protocol.navigation import ACTIVE_STATES, NavigateRequest, NavigationFeedback, NavigationResult
-from simd.core.arrays import F64
 from simd.core.models import RobotModel
 from simd.nav.lidar_guard import LOOK_AHEAD_M
 

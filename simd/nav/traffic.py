@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from simd.core.arrays import F32
+from fleetcommon.arrays import F32
 from simd.core.models import RobotModel
 from simd.nav.cells import MOVES, CellGraph, body_radius
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
+from fleetcommon.arrays import F32, F64
 from protocol.messages import FleetOdometry, FleetScans, Time
-from simd.core.arrays import F32, F64
 from simd.core.lidar import LidarSpec
 
 _encoder = msgspec.msgpack.Encoder()

@@ -19,9 +19,9 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
+from fleetcommon.arrays import F64
 from protocol.messages import Time
 from simd.core import native as _fast
-from simd.core.arrays import F64
 from simd.wire.convert import odometry
 
 _native, _why = _fast.load("odompack")  # None without a C compiler: the numpy path does the same

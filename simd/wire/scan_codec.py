@@ -13,8 +13,8 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 
+from fleetcommon.arrays import F32
 from protocol.messages import Header, LaserScan, Time
-from simd.core.arrays import F32
 from simd.core.lidar import LidarSpec
 
 _ZERO_STAMP = msgspec.msgpack.encode(Time())

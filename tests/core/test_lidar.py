@@ -26,8 +26,8 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import MultiLineString, Point
 
+from fleetcommon.arrays import F64
 from simd.core import lidar
-from simd.core.arrays import F64
 from simd.core.lidar import LidarSpec, StaticScene, cast_native, cast_numpy
 from simd.core.models import BURGER as BURGER_MODEL
 

@@ -28,8 +28,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from fleetcommon.arrays import F64, I64
 from simd.core import lidar
-from simd.core.arrays import F64, I64
 from simd.core.lidar import LidarSpec, StaticScene
 from tests.core.test_lidar import POSES, SCENES, box, no_circles, no_segments, regular, robot
 

@@ -17,9 +17,9 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from fleetcommon.arrays import F64
 from protocol import Odometry, SpawnRequest
 from simd.core import drive, native, sensor_model
-from simd.core.arrays import F64
 from simd.core.lidar import LidarSpec
 from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import load_world

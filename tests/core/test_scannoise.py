@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from simd.core.arrays import F32, F64
+from fleetcommon.arrays import F32, F64
 
 if os.environ.get("FLEETSIM_NATIVE", "").strip().lower() == "native":
     sn = importlib.import_module("simd.core._scannoise")  # as on CI: the compiled fast paths must be built

@@ -346,7 +346,7 @@ def test_two_robots_swap_ends_of_a_corridor(daemon_factory: Callable[..., Daemon
 
 
 def fleet(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "clients.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "clients.fleet.cli", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=ROOT)  # fmt: skip
 
 

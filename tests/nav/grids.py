@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 from hypothesis import strategies as st
 
-from simd.core.arrays import F32
+from fleetcommon.arrays import F32
 
 Cell = tuple[int, int]
 

@@ -19,8 +19,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fleetcommon.arrays import F32, F64
 from simd.core import native
-from simd.core.arrays import F32, F64
 from simd.core.models import BURGER
 from simd.core.worldfile import load_world
 from simd.nav import cells

@@ -21,9 +21,9 @@ import struct
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F32
 from protocol.frames import frame_id as robot_frame
 from protocol.messages import Time
-from simd.core.arrays import F32
 from simd.core.snapshot import TickSnapshot
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian

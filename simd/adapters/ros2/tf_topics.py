@@ -18,12 +18,12 @@ from typing import Any
 
 import numpy as np
 
+from fleetcommon.arrays import I64
 from simd.adapters.ros2 import graph
 from simd.adapters.ros2.graph import Node
 from simd.adapters.ros2.robot_ports import TF_TYPE, Participant, RobotPorts, RosPublisher
 from simd.adapters.ros2.tf_cdr import FleetTfCdr, PoseColumns, RobotTfCdr, map_to_odom
 from simd.adapters.ros2.tf_layout import TfLayout
-from simd.core.arrays import I64
 from simd.core.snapshot import TickSnapshot
 
 

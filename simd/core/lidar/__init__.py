@@ -59,7 +59,7 @@ import functools
 
 import numpy as np
 
-from simd.core.arrays import F32, F64, I64
+from fleetcommon.arrays import F32, F64, I64
 from simd.core.lidar import native_kernel, numpy_kernel
 from simd.core.lidar.native_kernel import KERNEL, NATIVE_UNAVAILABLE, native_spec_args
 from simd.core.lidar.outlines import outline_segments

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.lidar.scene import expand
 from simd.core.lidar.spec import DYN_CELL, DYN_MAX_CELLS, EPS_CULL, GROUP_MAX, GROUP_MAX_RADIUS
 

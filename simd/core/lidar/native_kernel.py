@@ -28,8 +28,8 @@ from typing import cast as _typed
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core import native
-from simd.core.arrays import F64, I64
 from simd.core.lidar.scene import StaticScene
 from simd.core.lidar.spec import (
     DYN_CELL,

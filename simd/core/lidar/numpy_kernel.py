@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.lidar.dyngrid import DynGrid
 from simd.core.lidar.scene import StaticScene
 from simd.core.lidar.spec import CHUNK_SENSORS, EPS_ANGLE, EPS_CULL, EPS_SEG, TWO_PI, LidarSpec, beam_table

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simd.core.arrays import F64
+from fleetcommon.arrays import F64
 from simd.core.lidar import native_kernel
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from simd.core.arrays import F64, I64
+from fleetcommon.arrays import F64, I64
 from simd.core.lidar.spec import EPS_CULL, STATIC_CELL, STATIC_MAX_CELLS, STATIC_PIECE
 
 #: The static scene's index as the compiled kernel's first arguments (simd/core/lidar/_raycast.c).

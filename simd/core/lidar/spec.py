@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simd.core.arrays import F64
+from fleetcommon.arrays import F64
 
 TWO_PI = 2.0 * np.pi
 

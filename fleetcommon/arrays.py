@@ -1,4 +1,5 @@
-"""The numpy array types the simulator's columns and kernels are annotated with, declared once."""
+"""The numpy array types that columns, kernels and maps are annotated with, declared once for the
+daemon and the clients."""
 
 from __future__ import annotations
 

@@ -23,8 +23,8 @@ import msgspec.yaml
 import yaml
 
 from clients.api import FleetClient
+from clients.fleet.spawn_plan import UsageError
 from clients.navigation import Goal
-from clients.spawn_plan import UsageError
 from fleetcommon.files import split_location, yaml_syntax_problem
 from protocol.errors import FleetError
 from protocol.navigation import NavigateRequest, NavigationFeedback, NavigationResult
