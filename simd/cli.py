@@ -21,7 +21,7 @@ from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
 from protocol.ros_domain import domain_id
 from simd.adapters.zenoh_entities import zenoh_too_old
-from simd.daemon import CheckedFlags, Refused
+from simd.daemon import CheckedFlags, Refused, build_daemon
 
 log = logging.getLogger("simd")
 
@@ -291,8 +291,6 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         flags = check_flags(args, os.environ)
-        from simd.daemon import build_daemon
-
         with contextlib.ExitStack() as teardown:  # everything opened below is closed here, in reverse
             daemon = build_daemon(flags, teardown)
             engine = daemon.engine
