@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from bench.processes import ROOT, free_port
+from bench.processes import ROOT, free_port, stop_process
 from clients.api import FleetClient
 from protocol.control import SpawnRequest
 
@@ -110,11 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  cmd_vel put per wall s:    {statistics.median(rates):.0f}")
     finally:
         daemon.terminate()
-        try:
-            daemon.wait(10)
-        except subprocess.TimeoutExpired:
-            daemon.kill()
-            daemon.wait()
+        stop_process(daemon, 10.0)
     return 0
 
 
