@@ -33,14 +33,14 @@ from pathlib import Path
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from simd.core import lidar
 from simd.core.lidar import LidarSpec, StaticScene, cast_native, cast_numpy
 from simd.core.models import BURGER as BURGER_MODEL
 from simd.core.worldfile import world_from_dict
-
-F64 = npt.NDArray[np.float64]
 
 ARENA = 60.0
 # the burger footprint outline (12 vertices), as the simulator uses it

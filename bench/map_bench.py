@@ -48,7 +48,7 @@ def run(world_name: str, robots: int, limit: float, tmp: Path, odom_noise: float
         loops: bool = True, seed: int = 0) -> dict[str, Any]:  # fmt: skip
     from clients.api import FleetClient
     from clients.mapping.evaluate import score
-    from protocol.mapfile import read_map
+    from fleetcommon.mapfile import read_map
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     log = (tmp / f"simd-{world_name}-{robots}.log").open("w")

@@ -45,8 +45,7 @@ import numpy.typing as npt
 from bench.measure import proc_cpu_seconds
 from bench.processes import DaemonProc, start_daemon
 from bench.report import machine_info, machine_line
-
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
 
 BURGER_V = 0.22
 TOLERANCE_M = 0.1

@@ -71,6 +71,8 @@ def machine_info() -> dict[str, Any]:
 
 def _fast_paths() -> str:
     """The daemon's compiled paths as the daemon will see them (same environment)."""
+    import simd.nav
+    import simd.wire  # noqa: F401  # both register their compiled fast paths
     from simd.core import native
 
     status = native.status()

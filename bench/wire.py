@@ -19,7 +19,7 @@ MSGPACK = "application/msgpack"
 
 
 def zenoh_config(endpoint: str, connect_timeout_s: float) -> Any:
-    from protocol.zenoh_config import ZenohOptions
+    from fleetcommon.zenoh_config import ZenohOptions
 
     conf = ZenohOptions(mode="client", connect=[endpoint]).build()
     conf.insert_json5("connect/timeout_ms", str(int(connect_timeout_s * 1000)))

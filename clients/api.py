@@ -32,6 +32,7 @@ import zenoh
 
 from clients.navigation import Goal
 from clients.tick_merge import TickMerge
+from fleetcommon.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions, zenoh_error_text
 from protocol.codec import MAX_REPLY_BYTES, decode, encode, reply_error
 from protocol.control import (
     Clock,
@@ -61,7 +62,6 @@ from protocol.navigation import (
     NavigationResult,
     NavigationState,
 )
-from protocol.zenoh_config import DEFAULT_ENDPOINT, ZenohOptions, zenoh_error_text
 
 T = TypeVar("T")
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from fleetcommon.zenoh_config import add_zenoh_args
 from protocol.keys import DEFAULT_PREFIX
-from protocol.zenoh_config import add_zenoh_args
 
 COMMANDS = ("spawn", "delete", "list", "world", "clock", "pause", "resume", "reset", "step", "daemons", "goto")
 

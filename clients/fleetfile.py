@@ -23,7 +23,7 @@ import msgspec
 import msgspec.yaml
 import yaml
 
-from protocol.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
+from fleetcommon.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
 
 FLEETS_DIR = Path(__file__).parent / "fleets"
 
@@ -48,10 +48,6 @@ class FleetRobot(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
 
 
 SHIPPED_FLEETS = ShippedFiles("fleet", FLEETS_DIR, FleetFileError)
-
-
-def list_fleets() -> list[str]:
-    return SHIPPED_FLEETS.names()
 
 
 def load_fleet(name_or_path: str) -> list[FleetRobot]:

@@ -19,8 +19,8 @@ from __future__ import annotations
 from typing import Any
 
 from clients.api import FleetClient
+from fleetcommon.zenoh_config import zenoh_error_text
 from protocol.errors import FleetError
-from protocol.zenoh_config import zenoh_error_text
 
 #: How long connecting, and then any one request, may take before the env gives up: seconds,
 #: not the client's default, so that a wrong endpoint is reported while the user still waits.

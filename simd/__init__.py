@@ -1,1 +1,2 @@
-"""simd: the fleetsim simulation daemon (core in world/robots/lidar/sim; network layer in net)."""
+"""simd: the fleetsim simulation daemon: the core (world, robots, lidar, the tick), the engine that runs
+it, the wire codecs, navigation and the adapters (fleet protocol, ROS 2); docs/architecture.md."""

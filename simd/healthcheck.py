@@ -35,8 +35,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fleetcommon.zenoh_config import ZenohOptions, zenoh_error_text
 from protocol.keys import DEFAULT_PREFIX
-from protocol.zenoh_config import ZenohOptions, zenoh_error_text
 from simd.container_entry import DEFAULT_LISTEN, DEFAULT_STATE_FILE, local_endpoint
 
 DEFAULT_TIMEOUT = 2.0

@@ -23,7 +23,7 @@ import sys
 import threading
 from types import FrameType
 
-from protocol.zenoh_config import (
+from fleetcommon.zenoh_config import (
     DEFAULT_ENDPOINT,
     ZenohOptions,
     exposed_without_authentication,

@@ -41,9 +41,8 @@ import numpy.typing as npt
 from clients.mapping.grid import Beams, LogOddsGrid
 from clients.mapping.loops import MIN_POINTS, search
 from clients.mapping.match import end_points
-from clients.mapping.posegraph import F64, Pose, PoseGraph, between, compose, information, inverse
-
-F32 = npt.NDArray[np.float32]
+from clients.mapping.posegraph import Pose, PoseGraph, between, compose, information, inverse
+from fleetcommon.arrays import F32, F64
 
 #: a new keyframe after this much motion since the last (slam_toolbox's defaults are 0.5 m and
 #: 0.5 rad; closer keyframes bend a map more smoothly and find closures sooner; a 360° lidar

@@ -34,12 +34,12 @@ from clients.follow import drain, follow, stop_on_signals
 from clients.mapping.explore import Explorer
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
+from fleetcommon.mapfile import MapFileError, OccupancyMap, pixels_of, write_map
+from fleetcommon.zenoh_config import options_from_args
 from protocol import FleetError
 from protocol.control import StepReply
 from protocol.errors import ErrorCode
-from protocol.mapfile import MapFileError, OccupancyMap, pixels_of, write_map
 from protocol.messages import FleetOdometry, FleetScans, LaserScan
-from protocol.zenoh_config import options_from_args
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_NO_DAEMON = 0, 1, 2, 3
 #: how often the explorer picks new goals: wall seconds in real time, steps in lockstep

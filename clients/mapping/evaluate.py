@@ -13,10 +13,9 @@ import numpy as np
 import numpy.typing as npt
 
 from clients.mapping.explore import wavefront
+from fleetcommon.arrays import F64
+from fleetcommon.mapfile import OccupancyMap
 from protocol.control import WorldInfo
-from protocol.mapfile import OccupancyMap
-
-F64 = npt.NDArray[np.float64]
 
 
 def distance_to_world(points: F64, world: WorldInfo) -> F64:

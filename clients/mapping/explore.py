@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from protocol.mapfile import FREE, UNKNOWN
+from fleetcommon.mapfile import FREE, UNKNOWN
 
 B = npt.NDArray[np.bool_]
 I32 = npt.NDArray[np.int32]

@@ -21,10 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from protocol.mapfile import FREE, OCCUPIED, UNKNOWN, OccupancyMap
-
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F32, F64
+from fleetcommon.mapfile import FREE, OCCUPIED, UNKNOWN, OccupancyMap
 
 HIT = math.log(0.7 / 0.3)
 MISS = math.log(0.4 / 0.6)

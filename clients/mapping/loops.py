@@ -40,8 +40,7 @@ import numpy.typing as npt
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.match import Obstacles, refine
 from clients.mapping.posegraph import Pose, information
-
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
 
 #: the wide search's reach around the estimate (metres, radians)
 WIDE_M = 1.0

@@ -30,8 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from clients.mapping.grid import OCCUPIED_LOGODDS, Beams, LogOddsGrid
-
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
 
 #: how far (cells) around a scan point's cell a correspondence is looked for, first and last
 #: iteration: the first takes a few centimetres of drift, the last only what fits closely

@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
+
 Pose = tuple[float, float, float]
 
 #: the robust kernels' scale, in standard deviations of the edge's own noise: Huber's (a loop

@@ -37,9 +37,9 @@ from clients.viewer.live_map import LiveMap
 from clients.viewer.navigation import NavCursor
 from clients.viewer.snapshot import render, take_snapshot
 from clients.viewer.state import FleetState
+from fleetcommon.zenoh_config import add_zenoh_args, options_from_args
 from protocol.errors import FleetError
 from protocol.keys import DEFAULT_PREFIX
-from protocol.zenoh_config import add_zenoh_args, options_from_args
 
 log = logging.getLogger("fleet-view")
 

@@ -11,8 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F32, F64
 
 LIDAR_RANGE_MAX = 3.5
 TRAIL_MAX_POINTS = 96

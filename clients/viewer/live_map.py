@@ -15,8 +15,8 @@ import numpy as np
 
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
+from fleetcommon.mapfile import FREE, OCCUPIED
 from protocol.control import WorldInfo
-from protocol.mapfile import FREE, OCCUPIED
 from protocol.messages import FleetOdometry, FleetScans
 
 MARGIN_M = 0.5

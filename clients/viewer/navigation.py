@@ -33,11 +33,9 @@ from dataclasses import dataclass, field
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64
 from protocol.navigation import NavigationPath, NavigationResult, RobotNavigation
-
-F64 = npt.NDArray[np.float64]
 
 ENDED_STATES = frozenset({"reached", "failed"})
 ENDED_KEEP_S = 1.5  # wall seconds an ended goal stays on pages (they flash the robot)

@@ -9,13 +9,10 @@ from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
 from clients.viewer.decimate import TRAIL_MAX_POINTS
+from fleetcommon.arrays import F32, F64
 from protocol.frames import SCAN_OFFSET
-
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
 
 #: ``base_scan`` in ``base_footprint`` (x, y) per model (protocol/frames.py, from the URDFs).
 LIDAR_OFFSET: dict[str, tuple[float, float]] = {model: (x, y) for model, (x, y, _) in SCAN_OFFSET.items()}

@@ -61,12 +61,6 @@ class Transform:
             self.height / 2 - (y - self.cy) * self.scale,
         )
 
-    def to_world(self, px: float, py: float) -> tuple[float, float]:
-        return (
-            self.cx + (px - self.width / 2) / self.scale,
-            self.cy - (py - self.height / 2) / self.scale,
-        )
-
     def scaled(self, k: int) -> Transform:
         return Transform(self.cx, self.cy, self.scale * k, self.width * k, self.height * k)
 

@@ -36,7 +36,6 @@ from dataclasses import dataclass
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 
 from clients.naming import natural_key
 from clients.viewer.decimate import (
@@ -47,14 +46,13 @@ from clients.viewer.decimate import (
 )
 from clients.viewer.navigation import NavBoard, NavCursor
 from clients.viewer.robot import TRAIL_MIN_STEP, TRAIL_SECONDS, KeptScan, RobotState
+from fleetcommon.arrays import F32
 from protocol.control import Clock, RobotRecord, WorldInfo
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry
 from protocol.navigation import FleetNavigation, NavigationPath, NavigationResult
 
 log = logging.getLogger(__name__)
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
 
 #: Robot colours (fill of the footprint; scans and trails use the same hue).
 PALETTE: tuple[str, ...] = (
@@ -375,11 +373,6 @@ class FleetState:
                 "circles": [[c.x, c.y, c.radius] for c in w.circles],
             }
         )
-
-    def meta_json(self) -> tuple[int, bytes]:
-        """The current version and its meta message (robots in frame order)."""
-        with self._lock:
-            return self._version, self._meta_locked()
 
     def _meta_locked(self) -> bytes:
         if not self._meta_json:

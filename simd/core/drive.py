@@ -17,12 +17,9 @@ import functools
 from typing import Protocol
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core import native
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 _native, _why = native.load("drive")
 

@@ -20,11 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.models import MODELS, RobotModel
 from simd.core.physics import Physics
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 #: a ghost that moves farther than this in one tick (m, rad) is put there, not driven there
 JUMP_M = 0.1

@@ -22,7 +22,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
-from protocol.mapfile import FREE, MapFileError, OccupancyMap, read_map
+from fleetcommon.mapfile import FREE, MapFileError, OccupancyMap, read_map
 from simd.core.movingai import DEFAULT_CELL_SIZE_M, MovingAIMap, is_movingai, read_movingai
 from simd.core.worldfile import SHIPPED_WORLDS, FloatArray, WorldFileError, WorldGeometry, load_world
 

@@ -19,6 +19,9 @@ from protocol.frames import SCAN_OFFSET
 
 Rect = tuple[float, float, float, float]  # x_min, x_max, y_min, y_max in base_footprint
 
+#: Odometry covariance diagonals of gazebo_ros_diff_drive (x, y, z, roll, pitch, yaw).
+ODOM_COVARIANCE_DIAGONAL = (1e-5, 1e-5, 1e12, 1e12, 1e12, 1e-3)
+
 
 @dataclass(frozen=True)
 class RobotModel:

@@ -6,7 +6,10 @@ navigation's distance fields on the cell graph (Dijkstra).
 Each numpy version stays in the code as the reference that tests compare the C one with, and
 as the fallback where nothing was compiled. ``KERNELS`` lists them: every module that has a
 twin asks for it here by its label (``load("drive")``), and ``status()`` reports the same
-choices without importing those modules, so nothing here depends on them.
+choices without importing those modules, so nothing here depends on them. The core's own
+kernels are listed here; a layer above the core registers its own when it is imported
+(``simd.wire`` the odometry packer, ``simd.nav`` the distance fields: their ``__init__``), so
+the core never names a module above it.
 
 ``FLEETSIM_NATIVE`` chooses: ``auto`` (default) uses what is built, ``numpy`` uses none of
 it (to compare, or to rule the C code out when something looks wrong), ``native`` fails at
@@ -34,14 +37,20 @@ class Kernel:
     override: str | None = None
 
 
-#: label -> the compiled module (built from ``source``, see pyproject.toml's ext-modules)
+#: label -> the compiled module (built from ``source``, see pyproject.toml's ext-modules): the
+#: core's, and those the layers above have registered
 KERNELS: dict[str, Kernel] = {
     "raycast": Kernel("simd.core.lidar._raycast", "simd/core/lidar/_raycast.c", override="FLEETSIM_LIDAR"),
     "scannoise": Kernel("simd.core._scannoise", "simd/core/_scannoise.c"),
     "drive": Kernel("simd.core._drive", "simd/core/_drive.c"),
-    "odompack": Kernel("simd.wire._odompack", "simd/wire/_odompack.c"),
-    "cellpaths": Kernel("simd.nav._cellpaths", "simd/nav/_cellpaths.c"),
 }
+
+
+def register(label: str, kernel: Kernel) -> None:
+    """Add a layer's compiled fast path under ``label`` (once; the same again is no change)."""
+    known = KERNELS.setdefault(label, kernel)
+    if known != kernel:
+        raise ValueError(f"the compiled fast path {label!r} is {known.module} already, not {kernel.module}")
 
 
 def choice(override: str | None = None) -> tuple[str, str]:

@@ -12,10 +12,9 @@ import numpy.typing as npt
 import pymunk
 import pymunk.batch
 
+from fleetcommon.arrays import F64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
-
-F64 = npt.NDArray[np.float64]
 
 _ROBOT = 1
 _STATIC = 2

@@ -11,16 +11,19 @@ entity addressed by either.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.models import RobotModel
 
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
+#: Table generations, unique in the process: a table that was replaced (a new simulation) never
+#: shows a generation another table had, so a memo keyed on it cannot be fooled.
+_generations = itertools.count(1)
 
 
 @dataclass(frozen=True)
@@ -48,7 +51,9 @@ class RobotTable:
 
     The simulation thread owns the table. Whole-column arrays may be replaced by the step
     (``table.x = new_x``) as long as the length stays; rows change only through
-    :meth:`append` and :meth:`remove`.
+    :meth:`append` and :meth:`remove`, and each such change gives the table a new
+    :attr:`generation`: whatever was worked out from its rows (row lookups, the scan schedule)
+    holds while the generation is the one it was worked out for.
     """
 
     rid: I64 = _column(np.int64)
@@ -85,6 +90,8 @@ class RobotTable:
         self.namespaces: list[str] = []
         self._by_key: dict[str, Robot] = {}
         self._row_of: dict[str, int] = {}  # namespace -> row
+        #: which rows the table has: a new number (never used before) whenever rows change
+        self.generation = next(_generations)
 
     @classmethod
     def columns(cls) -> tuple[str, ...]:
@@ -127,6 +134,7 @@ class RobotTable:
         self._by_key[robot.name] = robot
         self._by_key[robot.namespace] = robot
         self._row_of[robot.namespace] = row
+        self.generation = next(_generations)
         return row
 
     def remove(self, robot: Robot) -> int:
@@ -139,6 +147,8 @@ class RobotTable:
         """Remove these robots' rows at once (the others keep their order): one pass over
         the columns, where removing a thousand robots one by one would copy every column a
         thousand times."""
+        if not robots:
+            return
         rows = [self._row_of[r.namespace] for r in robots]
         where: int | list[int] = rows[0] if len(rows) == 1 else rows  # numpy slices for one row
         for name in self.columns():
@@ -152,3 +162,4 @@ class RobotTable:
         for robot in robots:
             del self._by_key[robot.name]
             self._by_key.pop(robot.namespace, None)
+        self.generation = next(_generations)

@@ -18,12 +18,10 @@ from different generators. Each path is deterministic for a given simulation see
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32
 from simd.core import native
 from simd.core.lidar import LidarSpec
-
-F32 = npt.NDArray[np.float32]
 
 _native, _why = native.load("scannoise")
 

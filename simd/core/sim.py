@@ -15,8 +15,8 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64, I64
 from protocol.control import MODELS as MODEL_NAMES
 from protocol.control import SpawnRequest
 from protocol.errors import ErrorCode, FleetError
@@ -30,12 +30,6 @@ from simd.core.robots import Robot, RobotTable
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
-I64 = npt.NDArray[np.int64]
-
-#: Odometry covariance diagonals of gazebo_ros_diff_drive (x, y, z, roll, pitch, yaw).
-ODOM_COVARIANCE_DIAGONAL = (1e-5, 1e-5, 1e12, 1e12, 1e12, 1e-3)
 #: Scans are batched: a scan phase takes up to this many robots before the next phase opens.
 #: Few robots then scan in one lidar call per 5 Hz period (the kernel's per-call overhead
 #: dominates small batches); many robots spread evenly over the six phases of a period.
@@ -91,7 +85,7 @@ class Simulation:
         self.robots = RobotTable()
         self._next_rid = 0
         self._phase_load = [0] * self.config.scan_every
-        self._due_of: list[str] | None = None  # the namespaces list _due_by_tick was worked out for
+        self._due_of: int | None = None  # the table generation _due_by_tick was worked out for
         self._due_by_tick: list[I64] = []
         self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
         self._last_scans: Future[F32] | None = None
@@ -325,7 +319,7 @@ class Simulation:
 
     def command_rows(self, rows: I64, v: F64, w: F64) -> None:
         """Command the robots of table ``rows`` at once (rows from ``robots.row_of``, valid
-        while the table's ``namespaces`` list is the same object); refreshes their watchdogs."""
+        while the table's ``generation`` is the same); refreshes their watchdogs."""
         t = self.robots
         t.target_v[rows] = v
         t.target_w[rows] = w
@@ -427,20 +421,21 @@ class Simulation:
             epoch=self.epoch,
             scan_index=due,
             true_pose=(t.x, t.y, t.yaw) if cfg.odom_noise > 0.0 else None,
+            generation=t.generation,
         )
 
     def _due_rows(self, t: RobotTable) -> list[I64]:
         """The table rows whose lidar fires on a tick, by the tick's place in the scan period
         (a robot scans when ``(tick - phase) % scan_every == 0``). Worked out again only when
-        the table changes: rows and phases move only with a spawn or delete, which replace the
-        table's ``namespaces`` list."""
-        if self._due_of is not t.namespaces:
+        the table changes: rows and phases move only with a spawn or delete, which give the
+        table a new generation."""
+        if self._due_of != t.generation:
             k = self.config.scan_every
             period_tick = t.phase % k
             self._due_by_tick = [np.flatnonzero(period_tick == r) for r in range(k)]
             for rows in self._due_by_tick:  # handed out tick after tick (TickSnapshot.scan_index)
                 rows.flags.writeable = False
-            self._due_of = t.namespaces
+            self._due_of = t.generation
         return self._due_by_tick
 
     def _slip(self, old_x: F64, old_y: F64, old_yaw: F64) -> tuple[F64, F64, F64]:

@@ -13,13 +13,9 @@ from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64, I64
 from simd.core.models import RobotModel
-
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
-I64 = npt.NDArray[np.int64]
 
 
 @dataclass(frozen=True)
@@ -54,7 +50,9 @@ class TickSnapshot:
 
     Rows of the odometry columns follow ``namespaces``; rows of ``scans`` follow
     ``scan_namespaces``. ``epoch`` counts resets: two snapshots with the same tick number
-    but different epochs belong to different runs of the world.
+    but different epochs belong to different runs of the world. ``generation`` is the robot
+    table's (:attr:`RobotTable.generation`) when the tick ran: snapshots with the same one
+    have the same rows.
     """
 
     tick: int
@@ -73,6 +71,8 @@ class TickSnapshot:
     scan_index: I64 = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     #: the true (x, y, yaw) columns when the odometry drifts from them, else None
     true_pose: tuple[F64, F64, F64] | None = None
+    #: the robot table's generation: the same rows as the table while it has this one
+    generation: int = 0
 
     @property
     def truth(self) -> tuple[F64, F64, F64]:

@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 
 import worlds
-from protocol.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
+from fleetcommon.files import FileFormatError, ShippedFiles, split_location, yaml_syntax_problem
 
 FloatArray = npt.NDArray[np.float64]
 

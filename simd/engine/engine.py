@@ -61,6 +61,7 @@ from simd.engine.ports import (
     Result,
     RobotList,
     ScanRow,
+    SimulationSetup,
     Spawned,
     StepResult,
     WorldReset,
@@ -95,23 +96,23 @@ class _StepJob:
     v: npt.NDArray[np.float64]
     w: npt.NDArray[np.float64]
     ran: int = 0
-    rows_of: list[str] | None = None  # the table's namespaces list that ``rows`` belong to
+    rows_of: int | None = None  # the table generation ``rows`` belong to
     rows: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     here: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))  # names still in the world
     #: the table rows of ``request.observe``, found when the request came (valid while the
-    #: table's namespaces list is ``watched_of``)
+    #: table's generation is ``watched_of``)
     watched: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    watched_of: list[str] | None = None
+    watched_of: int | None = None
 
     def apply(self, sim: Simulation, nav: Navigator | None = None) -> None:
         """Command this step's robots for the coming tick (those of them that navigate: only
         with commands other than zero, which override the navigator as cmd_vel does)."""
         t = sim.robots
-        if self.rows_of is not t.namespaces:
+        if self.rows_of != t.generation:
             found = [t.row_of(ns) for ns in self.names]
             self.here = np.array([i is not None for i in found], dtype=bool)
             self.rows = np.array([i for i in found if i is not None], dtype=np.int64)
-            self.rows_of = t.namespaces
+            self.rows_of = t.generation
         if len(self.rows):
             all_here = len(self.rows) == len(self.names)
             v, w = (self.v, self.w) if all_here else (self.v[self.here], self.w[self.here])
@@ -124,19 +125,19 @@ class _StepJob:
 class RowsMemo:
     """The table rows of the name list a learner sends step after step: a thousand names
     looked up again cost ~0.1 ms a step, comparing the list with the last one ~0.01 ms. Valid
-    while the table's namespaces list is the one the rows were found in (a spawn, delete or
-    reset replaces it)."""
+    while the table's generation is the one the rows were found in (a spawn or delete
+    changes it)."""
 
     def __init__(self, lookup: Callable[[RobotTable, list[str]], list[int | None]]) -> None:
         self._lookup = lookup
-        self._of: list[str] | None = None
+        self._of: int | None = None
         self._names: list[str] = []
         self._rows: list[int | None] = []
 
     def rows(self, table: RobotTable, names: list[str]) -> list[int | None]:
         """The row of each name (None where no robot has it), as ``lookup`` finds them."""
-        if self._of is not table.namespaces or names != self._names:
-            self._rows, self._names, self._of = self._lookup(table, names), list(names), table.namespaces
+        if self._of != table.generation or names != self._names:
+            self._rows, self._names, self._of = self._lookup(table, names), list(names), table.generation
         return self._rows
 
 
@@ -166,6 +167,7 @@ class Engine:
         self.sim = sim
         #: drives the robots that have a goal (simd/nav); None: no navigation (``--no-nav``)
         self.navigator = navigator
+        self.setup = SimulationSetup(sim.config.dt, sim.config.lidar, sim.world, navigator is not None)  # for adapters
         self.rtf = rtf
         self.lockstep = lockstep
         self.paused = paused or lockstep
@@ -185,7 +187,7 @@ class Engine:
         self._cpu_mark: float | None = None  # at the end of the last tick while time runs on
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
-        self._models: tuple[list[str] | None, list[str]] = (None, [])  # (namespaces, their models)
+        self._models: tuple[int | None, list[str]] = (None, [])  # (table generation, its models)
         self._observed_rows = RowsMemo(RobotTable.rows_of)  # by name or namespace, as observe names them
         self._commanded_rows = RowsMemo(_command_rows)
         self._saver = saver  # --state: the fleet written as it runs
@@ -394,8 +396,8 @@ class Engine:
 
     def _own_robots(self) -> OwnRobots:
         t = self.sim.robots
-        if self._models[0] is not t.namespaces:
-            self._models = (t.namespaces, [r.model.name for r in t.robots])
+        if self._models[0] != t.generation:
+            self._models = (t.generation, [r.model.name for r in t.robots])
         return OwnRobots(self.sim.tick, t.namespaces, self._models[1], t.x, t.y, t.yaw)
 
     def _announce_clock(self) -> None:
@@ -527,8 +529,8 @@ class Engine:
         if None in watched:
             ns = req.observe[watched.index(None)]
             raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
-        job = _StepJob(req, reply, names, v, w, rows_of=t.namespaces, rows=rows, here=np.ones(len(rows), dtype=bool))
-        job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.namespaces
+        job = _StepJob(req, reply, names, v, w, rows_of=t.generation, rows=rows, here=np.ones(len(rows), dtype=bool))
+        job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.generation
         self._steps.append(job)
         return None
 
@@ -602,7 +604,7 @@ class Engine:
         """The odometry and latest scans of the robots the step observes, as arrays (robots
         deleted during the step left out)."""
         t, keys = self.sim.robots, job.request.observe
-        if job.watched_of is t.namespaces:  # no spawn or delete since the request came
+        if job.watched_of == t.generation:  # no spawn or delete since the request came
             names, rows = keys, job.watched
         else:
             found = t.rows_of(keys)

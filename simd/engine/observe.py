@@ -18,11 +18,10 @@ from collections.abc import Sequence
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import I64
 from simd.core.robots import RobotTable
 from simd.core.snapshot import TickSnapshot
 from simd.engine.ports import ObservedArrays
-
-I64 = npt.NDArray[np.int64]
 
 
 class LatestScans:
@@ -71,13 +70,13 @@ class LatestScans:
 
     def _window(self, table: RobotTable) -> Sequence[TickSnapshot] | None:
         """The last ``scan_every`` snapshots, if they hold every robot's newest scan: the
-        table's rows did not change over them (same namespaces list, same epoch)."""
+        table's rows did not change over them (same generation, same epoch)."""
         recent = self._recent
         if len(recent) < self._scan_every:
             return None
         window = list(itertools.islice(recent, len(recent) - self._scan_every, None))
         epoch = window[-1].epoch
-        if any(s.namespaces is not table.namespaces or s.epoch != epoch for s in window):
+        if any(s.generation != table.generation or s.epoch != epoch for s in window):
             return None
         return window
 
@@ -135,7 +134,7 @@ def observe_packed(
 ) -> ObservedArrays:
     """The odometry and newest scans of the robots in table ``rows`` (named ``names``), as
     arrays: what their topics carried (or would have, in a step that publishes nothing)."""
-    if last is not None and last.namespaces is table.namespaces:  # rows unchanged since the last tick
+    if last is not None and last.generation == table.generation:  # rows unchanged since the last tick
         columns = (last.x, last.y, last.yaw, last.linear_x, last.linear_y, last.angular_z)
     else:  # a spawn or delete since (a cancelled step): the table's own columns
         columns = (table.odom_x, table.odom_y, table.odom_yaw, table.vx, table.vy, table.wz)

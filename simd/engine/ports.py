@@ -19,19 +19,26 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
 
-import numpy as np
-import numpy.typing as npt
-
+from fleetcommon.arrays import F32, F64
 from protocol.control import Clock
 from protocol.errors import FleetError
 from protocol.navigation import NavigateReply, NavigationResult, NavigationState
 from simd.core.ghosts import GhostColumns
+from simd.core.lidar import LidarSpec
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.nav.navigator import NavEvents
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
+
+@dataclass(frozen=True)
+class SimulationSetup:
+    """What does not change while the engine runs, for an adapter to build its encoders and
+    maps from (``Engine.setup``): an adapter sees this, never the simulation itself."""
+
+    dt: float  # one tick, in sim seconds
+    lidar: LidarSpec
+    world: WorldGeometry
+    navigation: bool  # the engine navigates robots to goals (not with ``--no-nav``)
 
 
 @dataclass(frozen=True)

@@ -52,15 +52,13 @@ from typing import Protocol, cast
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64, I64
 from simd.core import native
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.costmap import Grid, clearance_field
 from simd.nav.lanes import keep_right, reversed_moves
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 
 #: room (m) kept between a robot's circumscribed circle and anything else

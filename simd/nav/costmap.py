@@ -21,12 +21,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
-
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 DEFAULT_RESOLUTION_M = 0.05
 MAX_CELLS = 1_000_000

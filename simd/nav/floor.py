@@ -19,15 +19,13 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import CellGraph, body_radius, cell_size_for
 from simd.nav.costmap import Costmap
 from simd.nav.robot import NavRobot
 from simd.nav.traffic import FREE, Mover, Traffic
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 #: commit to the next cell when this close (in cells) to the centre of the last one held
 DECIDE_WITHIN_CELLS = 0.6

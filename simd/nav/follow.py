@@ -20,9 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
 
 LOOKAHEAD_M = 0.2
 #: turn in place when the pursuit point is further off the heading than this

@@ -14,12 +14,10 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.robots import RobotTable
 from simd.nav.floor import Floor
 from simd.nav.robot import NavRobot
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 #: how far ahead (s, at the commanded speed) a command is checked
 GUARD_S = 0.1

@@ -14,10 +14,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64
 from simd.core.lidar import LidarSpec
-
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
 
 #: the corridor is this much wider than the robot on each side
 SIDE_MARGIN_M = 0.03

@@ -9,8 +9,8 @@ ten thousand zenoh messages a second each way), and it runs in tick order, so a 
 Every tick it re-applies each navigating robot's command (an idle teleop's zeros never stop a
 robot on its way); every ``control_every`` ticks (10 Hz) it does the work:
 
-1. every robot holds the floor under it (its *floor*: floor.py on a grid map, open_floor.py
-   elsewhere), goal or not;
+1. every robot holds the floor under it (floor.py: a grid map's own cells, or cells laid
+   over an open world), goal or not;
 2. the scans since the last step give each robot's room ahead (lidar_guard.py): the first
    thing the map and the fleet do not explain stops it, and if that lasts, it marks what it
    sees and plans again;
@@ -33,6 +33,7 @@ import msgspec
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from protocol.errors import ErrorCode, FleetError
 from protocol.messages import Time
 from protocol.navigation import (
@@ -61,9 +62,6 @@ from simd.nav.traffic import FREE
 
 log = logging.getLogger(__name__)
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 __all__ = ["NavConfig", "NavEvents", "NavRobot", "Navigator"]
 
@@ -128,11 +126,11 @@ class Navigator:
         self.robots: dict[str, NavRobot] = {}
         self._next_slot = 0
         self._goal_counter = 0
-        self._rows_of: list[str] | None = None
+        self._rows_of: int | None = None
         self._row: dict[str, int] = {}
         self._snaps: list[TickSnapshot] = []
         self._events = NavEvents()
-        self._drive_of: list[str] | None = None
+        self._drive_of: int | None = None
         self._drive: tuple[I64, F64, F64] = (np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         self._stopping: list[str] = []
         self._now = 0.0
@@ -319,7 +317,7 @@ class Navigator:
             if stop:
                 zero = np.zeros(len(stop))
                 command_rows(np.array(stop, dtype=np.int64), zero, zero)
-        if self._drive_of is not table.namespaces:
+        if self._drive_of != table.generation:
             driven = [r for r in self.robots.values() if r.active and r.overridden_until < self._now]
             found = [table.row_of(r.namespace) for r in driven]
             keep = [k for k, row in enumerate(found) if row is not None]
@@ -328,7 +326,7 @@ class Navigator:
                 np.array([driven[k].command[0] for k in keep]),
                 np.array([driven[k].command[1] for k in keep]),
             )
-            self._drive_of = table.namespaces
+            self._drive_of = table.generation
         if len(self._drive[0]):
             command_rows(*self._drive)
 
@@ -363,7 +361,7 @@ class Navigator:
 
     def _sync(self, table: RobotTable) -> None:
         """Know every robot of the table, and the row of each (the table changed)."""
-        if self._rows_of is table.namespaces:
+        if self._rows_of == table.generation:
             return
         present = set(table.namespaces)
         for ns in [ns for ns in self.robots if ns not in present]:
@@ -371,7 +369,7 @@ class Navigator:
         for info in table.robots:
             self._robot(info.namespace, info.model)
         self._row = {ns: i for i, ns in enumerate(table.namespaces)}
-        self._rows_of = table.namespaces
+        self._rows_of = table.generation
 
     def _robot(self, namespace: str, model: RobotModel) -> NavRobot:
         robot = self.robots.get(namespace)

@@ -10,8 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64
 from protocol.control import Pose2D
 from protocol.messages import Time
 from protocol.navigation import (
@@ -22,8 +22,6 @@ from protocol.navigation import (
     NavigationResult,
     RobotNavigation,
 )
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass

@@ -10,13 +10,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64
 from protocol.navigation import ACTIVE_STATES, NavigateRequest, NavigationFeedback, NavigationResult
 from simd.core.models import RobotModel
 from simd.nav.lidar_guard import LOOK_AHEAD_M
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(eq=False)

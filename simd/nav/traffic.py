@@ -27,16 +27,14 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32
 from simd.core.models import RobotModel
 from simd.nav.cells import MOVES, CellGraph, body_radius
 
 #: each move's length in cells
 STEP = tuple(math.hypot(dr, dc) for dr, dc in MOVES)
 
-F32 = npt.NDArray[np.float32]
-I64 = npt.NDArray[np.int64]
 
 FREE = -1
 #: a robot commits to at most this many cells ahead of the one it stands in

@@ -32,7 +32,7 @@ from protocol.messages import (
     Vector3,
 )
 from simd.core.lidar import LidarSpec
-from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
+from simd.core.models import ODOM_COVARIANCE_DIAGONAL
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 

@@ -3,7 +3,7 @@
 ``P/odometry`` and ``P/scans`` carry what the per-robot topics carry, column by column, for a
 client that follows every robot (a training loop, a fleet controller, a viewer of a thousand
 robots). Their cost to a subscriber is per message, not per robot: one message a tick instead
-of one per robot. Each is built only while somebody subscribes (see ``net.Bridge``), from the
+of one per robot. Each is built only while somebody subscribes (simd/adapters/fleet/publisher.py), from the
 same arrays the per-robot messages come from, so the two views of a tick agree to the bit.
 """
 
@@ -11,13 +11,10 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64
 from protocol.messages import FleetOdometry, FleetScans, Time
 from simd.core.lidar import LidarSpec
-
-F64 = npt.NDArray[np.float64]
-F32 = npt.NDArray[np.float32]
 
 _encoder = msgspec.msgpack.Encoder()
 

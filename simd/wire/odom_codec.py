@@ -18,15 +18,14 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64
 from protocol.messages import Time
 from simd.core import native as _fast
 from simd.wire.convert import odometry
 
 _native, _why = _fast.load("odompack")  # None without a C compiler: the numpy path does the same
 
-F64 = npt.NDArray[np.float64]
 
 #: Distinct values that cannot occur in real data, one per patched field, in this order:
 #: position.x, position.y, orientation.z, orientation.w, twist.linear.x, linear.y, angular.z

@@ -12,12 +12,10 @@ from __future__ import annotations
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32
 from protocol.messages import Header, LaserScan, Time
 from simd.core.lidar import LidarSpec
-
-F32 = npt.NDArray[np.float32]
 
 _ZERO_STAMP = msgspec.msgpack.encode(Time())
 _encoder = msgspec.msgpack.Encoder()

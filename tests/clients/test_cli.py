@@ -14,8 +14,8 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from clients import cli
-from clients.fleet_output import Outcome
+from clients.fleet import cli
+from clients.fleet.output import Outcome
 from clients.fleetfile import FleetFileError, load_fleet
 from protocol import RobotRecord
 from tests.conftest import ROOT, Daemon, free_port
@@ -36,14 +36,14 @@ def run(argv: list[str], env: dict[str, str] | None = None, timeout: float = 20.
 
 
 def fleet(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
-    return run([sys.executable, "-m", "clients.cli", *args], env)
+    return run([sys.executable, "-m", "clients.fleet.cli", *args], env)
 
 
 def fleet_spawn(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
     script = BIN / "fleet-spawn"
     if script.exists():
         return run([str(script), *args], env)
-    code = "import sys; from clients.cli import spawn_main; sys.exit(spawn_main())"
+    code = "import sys; from clients.fleet.cli import spawn_main; sys.exit(spawn_main())"
     return run([sys.executable, "-c", code, *args], env)
 
 
@@ -292,8 +292,8 @@ def test_shipped_fleet_reproduces_the_seed_launch() -> None:
 def test_no_daemon_exits_3_promptly_with_one_line() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     for argv in (
-        [sys.executable, "-m", "clients.cli", "list", "-e", endpoint, "--timeout", "1"],
-        [sys.executable, "-m", "clients.cli", "spawn", "tb3_0", "-e", endpoint, "--timeout", "1"],
+        [sys.executable, "-m", "clients.fleet.cli", "list", "-e", endpoint, "--timeout", "1"],
+        [sys.executable, "-m", "clients.fleet.cli", "spawn", "tb3_0", "-e", endpoint, "--timeout", "1"],
     ):
         start = time.monotonic()
         p = run(argv)

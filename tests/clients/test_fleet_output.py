@@ -1,4 +1,4 @@
-"""What ``fleet`` prints and plans, table by table (clients/fleet_output.py, spawn_plan.py):
+"""What ``fleet`` prints and plans, table by table (clients/fleet/output.py, spawn_plan.py):
 pure functions, no daemon."""
 
 from __future__ import annotations
@@ -8,11 +8,11 @@ import argparse
 import msgspec
 import pytest
 
+from clients.fleet.output import describe_clock, describe_spawn, format_table, in_list_order, teleop_command
+from clients.fleet.spawn_plan import UsageError, plan_spawn
 from clients.fleet_args import build_parser, spawn_parser
-from clients.fleet_output import describe_clock, describe_spawn, format_table, in_list_order, teleop_command
 from clients.fleetfile import FleetRobot
 from clients.naming import natural_key
-from clients.spawn_plan import UsageError, plan_spawn
 from protocol.control import Clock, ModelLimits, Pose2D, RobotRecord, Topics
 from protocol.messages import Time
 

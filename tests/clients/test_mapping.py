@@ -18,7 +18,7 @@ from PIL import Image
 from clients.mapping.evaluate import distance_to_world, score
 from clients.mapping.grid import Beams, LogOddsGrid
 from clients.mapping.mapper import Mapper
-from protocol.mapfile import read_map
+from fleetcommon.mapfile import read_map
 from tests.clients.test_record import wait_subscribed
 from tests.conftest import ROOT, Daemon
 

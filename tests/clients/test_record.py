@@ -24,7 +24,7 @@ from tests.conftest import ROOT, Daemon, free_port
 
 def record(daemon: Daemon, out: Path, *args: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-m", "clients.record", "-e", daemon.endpoint, "-o", str(out), *args],
+        [sys.executable, "-m", "clients.record.cli", "-e", daemon.endpoint, "-o", str(out), *args],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background shell may ignore it
@@ -121,7 +121,7 @@ def test_bad_requests_are_one_line_and_touch_nothing(daemon: Daemon, tmp_path: P
     (taken / "mine.txt").write_text("keep me")
 
     def run(*args: str) -> subprocess.CompletedProcess[str]:
-        return subprocess.run([sys.executable, "-m", "clients.record", *args], capture_output=True, text=True,
+        return subprocess.run([sys.executable, "-m", "clients.record.cli", *args], capture_output=True, text=True,
                               cwd=ROOT, timeout=30)  # fmt: skip
 
     p = run("-e", daemon.endpoint, "-o", str(taken), "--duration", "1")

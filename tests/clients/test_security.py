@@ -23,9 +23,9 @@ import zenoh
 
 from clients import FleetClient
 from clients.security import init
+from fleetcommon.zenoh_config import ZenohOptions
 from protocol import FleetError
 from protocol.errors import ErrorCode
-from protocol.zenoh_config import ZenohOptions
 from tests.conftest import ROOT, free_port, simd_command
 
 

@@ -22,11 +22,11 @@ from prompt_toolkit.input import create_pipe_input
 from prompt_toolkit.output import DummyOutput
 
 from clients import FleetClient, wait_until
-from clients import teleop as teleop_mod
-from clients.teleop import Teleop
-from clients.teleop_model import LIN_RAMP
+from clients.teleop import cli as teleop_mod
+from clients.teleop.cli import Teleop
+from clients.teleop.model import LIN_RAMP
+from fleetcommon.zenoh_config import ZenohOptions
 from protocol import Twist
-from protocol.zenoh_config import ZenohOptions
 from tests.conftest import ROOT, Daemon, free_port, simd_command
 
 BURGER = (0.22, 2.84)
@@ -223,7 +223,7 @@ def test_teleop_in_a_real_terminal(daemon_factory: Callable[..., Daemon], tmp_pa
     x0 = c.wait_odom("TB3_1").pose.pose.position.x
 
     script = Path(sys.executable).parent / "fleet-teleop"
-    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "clients.teleop"]
+    cmd = [str(script)] if script.exists() else [sys.executable, "-m", "clients.teleop.cli"]
     exit_file = tmp_path / "exit"
     shell = f"{shlex.join([*cmd, 'TB3_1', '-e', d.endpoint])}; echo $? > {shlex.quote(str(exit_file))}"
     socket_name = f"fleetsim-test-{uuid.uuid4().hex[:8]}"

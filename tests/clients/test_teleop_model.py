@@ -1,4 +1,4 @@
-"""fleet-teleop's pure model (clients/teleop_model.py), table by table: keys, clamps, ramps,
+"""fleet-teleop's pure model (clients/teleop/model.py), table by table: keys, clamps, ramps,
 the nearest obstacle and its bearing, and the text of the screen (with an injected clock)."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from clients.teleop_model import (
+from clients.teleop.model import (
     ANG_RAMP,
     LIN_RAMP,
     Seen,

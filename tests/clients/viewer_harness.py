@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from PIL import Image
 
-from tests.conftest import ROOT, Daemon
+from tests.conftest import ROOT, Daemon, stop_process
 
 
 @dataclass
@@ -24,16 +24,10 @@ class Viewer:
 
     def stop(self, sig: int = signal.SIGTERM, timeout: float = 5.0) -> tuple[int, float]:
         t0 = time.monotonic()
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        status = stop_process(self.proc, sig, timeout)
         if self.proc.stdout:
             self.proc.stdout.close()
-        return int(self.proc.returncode), time.monotonic() - t0
+        return status, time.monotonic() - t0
 
 
 def fleet_view(daemon: Daemon, *args: str) -> list[str]:

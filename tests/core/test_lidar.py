@@ -26,11 +26,11 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 from shapely.geometry import MultiLineString, Point
 
+from fleetcommon.arrays import F64
 from simd.core import lidar
 from simd.core.lidar import LidarSpec, StaticScene, cast_native, cast_numpy
 from simd.core.models import BURGER as BURGER_MODEL
 
-F64 = npt.NDArray[np.float64]
 TOL = 1e-4  # m
 GRAZE_DELTA = 1e-7  # m: perturbation that decides beams grazing an end, a tangent or a range limit
 SPEC = LidarSpec()

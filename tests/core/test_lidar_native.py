@@ -28,6 +28,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
+from fleetcommon.arrays import F64, I64
 from simd.core import lidar
 from simd.core.lidar import LidarSpec, StaticScene
 from tests.core.test_lidar import POSES, SCENES, box, no_circles, no_segments, regular, robot
@@ -36,8 +37,6 @@ pytestmark = pytest.mark.skipif(
     lidar.NATIVE_UNAVAILABLE is not None, reason=f"native lidar kernel: {lidar.NATIVE_UNAVAILABLE}"
 )
 
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 SPEC = LidarSpec()
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

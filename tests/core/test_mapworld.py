@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from clients.mapping.grid import Beams, LogOddsGrid
+from fleetcommon.mapfile import OccupancyMap, write_map
 from protocol.control import SpawnRequest
-from protocol.mapfile import OccupancyMap, write_map
 from simd.core.mapworld import load_world_or_map, occupied_boxes, world_from_map
 from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import WorldFileError, load_world

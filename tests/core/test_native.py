@@ -7,6 +7,7 @@ from __future__ import annotations
 import functools
 import json
 import os
+import re
 import subprocess
 import sys
 from dataclasses import dataclass, fields
@@ -16,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 import pytest
 
+from fleetcommon.arrays import F64
 from protocol import Odometry, SpawnRequest
 from simd.core import drive, native, sensor_model
 from simd.core.lidar import LidarSpec
@@ -28,7 +30,6 @@ needs_drive = pytest.mark.skipif(drive._native is None, reason="simd.core._drive
 needs_pack = pytest.mark.skipif(odom_codec._native is None, reason="simd.wire._odompack is not built")
 needs_noise = pytest.mark.skipif(sensor_model._native is None, reason="simd._scannoise is not built")
 DT = 1.0 / 30.0
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass
@@ -178,6 +179,22 @@ def test_compiled_packer_checks_its_layout() -> None:
     assert pack([], b"s", tails, np.zeros((0, 2), dtype=np.int64), no_rows, np.zeros((0, 7))) == []
 
 
+def test_the_core_names_only_its_own_kernels_and_the_layers_above_register_theirs() -> None:
+    """The core's registry names no module above the core (import-linter cannot read a module
+    name in a string); the wire and navigation add theirs when imported."""
+    code = (
+        "import json; from simd.core import native; core = dict(native.KERNELS); import simd.wire, simd.nav; "
+        "print(json.dumps([{k: v.module for k, v in core.items()}, {k: v.module for k, v in native.KERNELS.items()}]))"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    core, everything = json.loads(done.stdout)
+    assert core and all(module.startswith("simd.core.") for module in core.values()), core
+    assert everything == {**core, "odompack": "simd.wire._odompack", "cellpaths": "simd.nav._cellpaths"}
+    native.register("odompack", native.KERNELS["odompack"])  # the same again: no change
+    with pytest.raises(ValueError, match=re.escape("'drive' is simd.core._drive already")):
+        native.register("drive", native.Kernel("elsewhere._drive", "elsewhere/_drive.c"))
+
+
 def test_the_switch_turns_the_compiled_paths_off(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv(native.ENV, "numpy")
     module, why = native.load("drive")
@@ -193,7 +210,7 @@ def test_the_switch_turns_the_compiled_paths_off(monkeypatch: pytest.MonkeyPatch
 def paths_in_a_fresh_process(**env: str) -> dict[str, str]:
     """native.status() as a daemon started with this environment would report it."""
     clean = {k: v for k, v in os.environ.items() if k not in ("FLEETSIM_NATIVE", "FLEETSIM_LIDAR")}
-    code = "import json; from simd.core import native; print(json.dumps(native.status()))"
+    code = "import json, simd.wire, simd.nav; from simd.core import native; print(json.dumps(native.status()))"
     done = subprocess.run(
         [sys.executable, "-c", code], env={**clean, **env}, capture_output=True, text=True, check=True
     )

@@ -68,3 +68,23 @@ def test_removing_many_at_once_leaves_what_removing_them_one_by_one_leaves() -> 
     assert many.row_of("ns6") == 3 and many.find("r0") is None and many.find("ns3") is None
     many.remove_many([])
     assert len(many) == 4
+
+
+def test_every_change_of_rows_and_only_that_gives_a_new_generation_never_seen_before() -> None:
+    t, other = RobotTable(), RobotTable()
+    seen = {t.generation, other.generation}
+    assert len(seen) == 2  # two tables never share one
+    robots = [robot(k, f"r{k}") for k in range(3)]
+    for k, r in enumerate(robots):
+        t.append(r, rid=k)
+        assert t.generation not in seen
+        seen.add(t.generation)
+    before = t.generation
+    t.x = t.x + 1.0  # a column replaced by the step: the same rows
+    t.remove_many([])
+    assert t.generation == before
+    t.remove(robots[1])
+    assert t.generation not in seen
+    seen.add(t.generation)
+    t.remove_many([robots[0], robots[2]])
+    assert t.generation not in seen and len(t) == 0

@@ -21,16 +21,15 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 import pytest
+
+from fleetcommon.arrays import F32, F64
 
 if os.environ.get("FLEETSIM_NATIVE", "").strip().lower() == "native":
     sn = importlib.import_module("simd.core._scannoise")  # as on CI: the compiled fast paths must be built
 else:
     sn = pytest.importorskip("simd.core._scannoise", reason="simd.core._scannoise is not built (no C compiler?)")
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
 RMIN, RMAX = 0.12, 3.5  # the TurtleBot3 LDS-01 of simd.core.lidar.LidarSpec
 BELOW_MAX = float(np.nextafter(np.float32(RMAX), np.float32(0)))
 ABOVE_MAX = float(np.nextafter(np.float32(RMAX), np.float32(np.inf)))

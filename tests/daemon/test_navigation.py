@@ -346,7 +346,7 @@ def test_two_robots_swap_ends_of_a_corridor(daemon_factory: Callable[..., Daemon
 
 
 def fleet(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "clients.cli", *args], capture_output=True, text=True,
+    return subprocess.run([sys.executable, "-m", "clients.fleet.cli", *args], capture_output=True, text=True,
                           timeout=timeout, cwd=ROOT)  # fmt: skip
 
 
@@ -453,7 +453,7 @@ def test_goto_without_a_daemon(tmp_path: Path) -> None:
 def test_a_waffle_on_a_map_server_map_goes_round_a_wall(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
     """A map as fleet-map or map_server writes it (PGM + YAML), a waffle (0.58 m cells): the
     wall between start and goal leaves a gap at its top end, and the robot takes it."""
-    from protocol.mapfile import OCCUPIED, OccupancyMap, write_map
+    from fleetcommon.mapfile import OCCUPIED, OccupancyMap, write_map
 
     cells = np.zeros((80, 120), dtype=np.int8)  # 6 m x 4 m at 5 cm, row 0 at the bottom
     cells[:2, :] = cells[-2:, :] = cells[:, :2] = cells[:, -2:] = OCCUPIED

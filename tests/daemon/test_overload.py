@@ -66,7 +66,7 @@ def test_a_daemon_asked_for_more_than_it_can_do_says_so_once(daemon_factory: Cal
     assert later.falling_behind and later.behind_s > clock.behind_s
     assert [line for line in d.log().splitlines() if "falling behind" in line] == warned
     shown = subprocess.run(
-        [sys.executable, "-m", "clients.cli", "clock", "-e", d.endpoint],
+        [sys.executable, "-m", "clients.fleet.cli", "clock", "-e", d.endpoint],
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert shown.returncode == 0 and "falling behind (" in shown.stdout, shown

@@ -471,9 +471,9 @@ def check_flags(words: list[str], where: str) -> None:
 
     from clients.fleet_args import build_parser as fleet_parser
     from clients.mapping.cli import build_parser as map_parser
-    from clients.record import build_parser as record_parser
+    from clients.record.cli import build_parser as record_parser
     from clients.ros.cli import build_parser as ros_parser
-    from clients.teleop import build_parser as teleop_parser
+    from clients.teleop.cli import build_parser as teleop_parser
     from clients.viewer.app import build_parser as view_parser
     from simd.cli import build_parser as simd_parser
 

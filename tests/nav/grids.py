@@ -17,7 +17,8 @@ import numpy as np
 import numpy.typing as npt
 from hypothesis import strategies as st
 
-F32 = npt.NDArray[np.float32]
+from fleetcommon.arrays import F32
+
 Cell = tuple[int, int]
 
 

@@ -19,14 +19,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from fleetcommon.arrays import F32, F64
 from simd.core import native
 from simd.core.models import BURGER
 from simd.core.worldfile import load_world
 from simd.nav import cells
 from simd.nav.cells import CellGraph, cell_size_for, dijkstra, dijkstra_native, dijkstra_python, with_knights
 
-F32 = npt.NDArray[np.float32]
-F64 = npt.NDArray[np.float64]
 Moves = npt.NDArray[np.bool_]
 Search = Callable[[Moves, int, int, float], F32]
 

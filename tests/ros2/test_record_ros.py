@@ -45,7 +45,7 @@ def test_ros_topics_recorded_as_they_came(ros_factory: Callable[..., RosDomain],
     c.spawn("waffle_2", 0.5, -2.0, model="waffle", namespace="TB3_2")
     bag = tmp_path / "ros_run"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "clients.record", "--source", "ros", "--ros-router", ros.router, "-o", str(bag),
+        [sys.executable, "-m", "clients.record.cli", "--source", "ros", "--ros-router", ros.router, "-o", str(bag),
          "--robots", "TB3_1", "--topics", "odom,scan,imu,tf,tf_static,clock"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
         env={**os.environ, "PYTHONUNBUFFERED": "1"},
@@ -90,7 +90,7 @@ def test_ros_topics_recorded_as_they_came(ros_factory: Callable[..., RosDomain],
     [(["--topics", "imu"], 2, "need --source ros"), (["--source", "ros", "--ros-domain-id", "999"], 2, "0..232")],
 )
 def test_ros_source_flags(args: list[str], code: int, text: str, tmp_path: Path) -> None:
-    p = subprocess.run([sys.executable, "-m", "clients.record", "-o", str(tmp_path / "x"), *args],
+    p = subprocess.run([sys.executable, "-m", "clients.record.cli", "-o", str(tmp_path / "x"), *args],
                        capture_output=True, text=True, cwd=ROOT, timeout=30)  # fmt: skip
     assert p.returncode == code and text in p.stderr and not (tmp_path / "x").exists()
 
@@ -99,7 +99,7 @@ def test_no_router_is_one_line(tmp_path: Path) -> None:
     from tests.conftest import free_port
 
     p = subprocess.run(
-        [sys.executable, "-m", "clients.record", "--source", "ros", "--ros-router", f"tcp/127.0.0.1:{free_port()}",
+        [sys.executable, "-m", "clients.record.cli", "--source", "ros", "--ros-router", f"tcp/127.0.0.1:{free_port()}",
          "-o", str(tmp_path / "x"), "--timeout", "1"],
         capture_output=True, text=True, cwd=ROOT, timeout=30,
     )  # fmt: skip

@@ -289,14 +289,23 @@ def test_clock_follows_lockstep(ros_factory: Callable[..., RosDomain]) -> None:
     ros = ros_factory("--lockstep")
     clock = ros.tool.subscribe("/clock", "rosgraph_msgs/msg/Clock")
     c = ros.daemon.client()
-    time.sleep(0.5)  # let the subscription reach the daemon before the step it should see
-    c.step(45)
-    t = None
+    ticks = 0  # stepped a tick at a time until the daemon has heard the subscription and puts /clock
     deadline = time.monotonic() + 10
-    while t != 1.5 and time.monotonic() < deadline:
+    while True:
+        assert time.monotonic() < deadline, "/clock never came"
+        ticks += c.step(1).ticks_run
+        try:
+            wait_for(clock, timeout=0.2)
+            break
+        except TimeoutError:
+            continue
+    c.step(45)
+    want = (ticks + 45) / 30  # 45 more ticks of 1/30 s, on /clock for use_sim_time
+    t = None
+    while t != pytest.approx(want, abs=1e-9) and time.monotonic() < deadline:
         m = wait_for(clock)[0]
         t = m.clock.sec + m.clock.nanosec * 1e-9
-    assert t == 1.5  # 45 ticks of 1/30 s, on /clock for use_sim_time
+    assert t == pytest.approx(want, abs=1e-9)
 
 
 def test_bad_input_on_ros_keys_changes_nothing(ros: RosDomain) -> None:

@@ -17,7 +17,7 @@ def test_a_daemon_is_listed_while_it_runs(daemon_factory: Callable[..., Daemon])
     [info] = c.daemons()
     assert (info.id, info.world, info.pid) == ("lab_a", "empty", d.proc.pid)
     listed = subprocess.run(
-        [sys.executable, "-m", "clients.cli", "daemons", "-e", d.endpoint],
+        [sys.executable, "-m", "clients.fleet.cli", "daemons", "-e", d.endpoint],
         cwd=ROOT, capture_output=True, text=True, timeout=30,
     )  # fmt: skip
     assert listed.returncode == 0, listed.stderr

@@ -87,7 +87,7 @@ class Lan:
     def fleet(self, *args: str, timeout: float = 3.0) -> Any:
         """``fleet ARGS --json`` from the clients' namespace, decoded."""
         done = subprocess.run(
-            ["ip", "netns", "exec", self.ns("client"), sys.executable, "-m", "clients.cli", *args,
+            ["ip", "netns", "exec", self.ns("client"), sys.executable, "-m", "clients.fleet.cli", *args,
              "-e", ROUTER, "--timeout", str(timeout), "--json"],
             capture_output=True, text=True, cwd=ROOT, timeout=60,
         )  # fmt: skip

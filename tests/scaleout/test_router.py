@@ -78,7 +78,7 @@ def test_a_daemon_and_its_clients_meet_through_the_router(
                 moved = c.wait_odom("tb3_0").pose.pose.position.x
             assert moved >= before + 0.05
         listed = subprocess.run(
-            [sys.executable, "-m", "clients.cli", "list", "-e", endpoint],
+            [sys.executable, "-m", "clients.fleet.cli", "list", "-e", endpoint],
             cwd=ROOT, capture_output=True, text=True, timeout=30,
         )  # fmt: skip
         assert listed.returncode == 0 and "tb3_0" in listed.stdout, listed.stdout + listed.stderr

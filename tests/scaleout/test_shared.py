@@ -71,7 +71,7 @@ def test_spawns_are_placed_by_name_and_the_fleet_is_one_list(
         c.on_daemons(lambda d, alive: told.append((d, alive)))
         assert wait_until(lambda: sorted(told) == [("a", True), ("b", True)], 5.0), told  # those there now
         watch_log = tmp_path / "watch.log"
-        watch = _start([sys.executable, "-m", "clients.cli", "daemons", "--watch", "-e", endpoint], watch_log)
+        watch = _start([sys.executable, "-m", "clients.fleet.cli", "daemons", "--watch", "-e", endpoint], watch_log)
         try:
             _wait_for(watch_log, "daemons: a, b; watching", watch)
             _stop(daemons["b"])  # a daemon dies: its robots leave the fleet, its names go to the survivor

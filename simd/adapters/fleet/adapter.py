@@ -80,9 +80,9 @@ class FleetAdapter:
         #: answered by the robot's daemon (docs/scale-out.md)
         self.members = members
         self._own: set[str] = set()  # names and namespaces of this daemon's robots (sim thread writes)
-        spec = engine.sim.config.lidar
+        spec = engine.setup.lidar
         self.spec = spec
-        self._world_info = convert.world_info(engine.sim.world)
+        self._world_info = convert.world_info(engine.setup.world)
         self.publisher = Publisher(session, keys, spec)
         self.commands = CommandIntake(command_session or session, keys)
         self.outbox = Outbox("fleet-out")

@@ -27,13 +27,12 @@ from protocol.keys import Keys
 from protocol.navigation import (
     CancelRequest,
     NavigateRequest,
-    NavigationPath,
     NavigationRequest,
     NavigationStateRequest,
 )
 from simd.adapters.fleet.requests import Pending, reply_format
 from simd.adapters.zenoh_entities import Interest, undeclare_all
-from simd.nav.navigator import NavEvents
+from simd.nav.report import NavEvents
 
 log = logging.getLogger(__name__)
 
@@ -132,10 +131,6 @@ class NavigationKeys:
     def forget(self, robot: str) -> None:
         with self._lock:
             self._plans.pop(robot, None)
-
-    def latest_plans(self) -> dict[str, NavigationPath]:
-        with self._lock:
-            return {r: msgspec.msgpack.decode(p, type=NavigationPath) for r, p in self._plans.items()}
 
     def close(self) -> None:
         undeclare_all(self._entities)

@@ -47,7 +47,7 @@ from simd.adapters.ros2.shared_fleet import FleetRequests, SharedFleet, Speaker,
 from simd.adapters.ros2.tf_layout import TfLayout
 from simd.adapters.ros2.tf_topics import TfTopics
 from simd.adapters.zenoh_entities import undeclare_all
-from simd.core.sim import ODOM_COVARIANCE_DIAGONAL
+from simd.core.models import ODOM_COVARIANCE_DIAGONAL
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.engine import Engine
 from simd.engine.outbox import Outbox
@@ -99,7 +99,7 @@ class Ros2Adapter:
         p = self.participant = Participant(session, options.domain_id, options.distro)
         self.layout = layout = options.layout
         prefixed = not layout.namespaced
-        spec = engine.sim.config.lidar
+        spec = engine.setup.lidar
         self._odom = cdr.OdometryCdr(ODOM_COVARIANCE_DIAGONAL, prefixed)
         self._scan = cdr.LaserScanCdr(
             spec.angle_min, spec.angle_max, spec.angle_increment, spec.range_min, spec.range_max, spec.samples,
@@ -107,7 +107,7 @@ class Ros2Adapter:
         )  # fmt: skip
         self._imu = cdr.ImuCdr(prefixed)
         self._joints = cdr.JointStateCdr()
-        self._dt = engine.sim.config.dt
+        self._dt = engine.setup.dt
         self._tokens: list[Any] = []
         node = self.node = p.node("/", node_name(shared.daemon_id if shared is not None else None))
         self._tokens.append(session.liveliness().declare_token(node.token()))
@@ -123,11 +123,11 @@ class Ros2Adapter:
         self.robot_nodes = RobotNodes(p, self.outbox, self._known)
         #: Nav2's navigate_to_pose, goal_pose and plan of each robot (not with --no-nav); a robot's
         #: goals go to this daemon's own engine, which navigates it, shared fleet or not
-        self.navigation = RosNavigation(p, engine.submit, self.outbox, layout) if engine.navigator is not None else None
+        self.navigation = RosNavigation(p, engine.submit, self.outbox, layout) if engine.setup.navigation else None
         #: /map and /<ns>/initialpose (--ros-localization); each daemon of a shared fleet draws the
         #: same world and places its own robots
         self.localization = (
-            RosLocalization(p, node, engine.sim.world, engine.submit, self.outbox, self._known, options.world_frame,
+            RosLocalization(p, node, engine.setup.world, engine.submit, self.outbox, self._known, options.world_frame,
                             lambda: self._time or 0.0)
             if layout.localization
             else None

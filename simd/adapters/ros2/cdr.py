@@ -21,11 +21,10 @@ import struct
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F32
 from protocol.frames import frame_id as robot_frame
 from protocol.messages import Time
 from simd.core.snapshot import TickSnapshot
-
-F32 = npt.NDArray[np.float32]
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # CDR, little endian
 _STAMP = struct.Struct("<iI")

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from protocol.zenoh_config import zenoh_error_text
+from fleetcommon.zenoh_config import zenoh_error_text
 
 DEFAULT_ROUTER = "tcp/localhost:7447"
 SESSION_CONFIG_URI = "ZENOH_SESSION_CONFIG_URI"
@@ -88,7 +88,7 @@ def ros_config(router: str = DEFAULT_ROUTER, *, serve: bool = False, mode: str =
         conf.insert_json5("listen/endpoints", json.dumps(["tcp/localhost:0"]))
     for key, value in RMW_ZENOH_SETTINGS.items():
         conf.insert_json5(key, value)
-    # a tick's messages leave back to back: the fleet session's larger send queues (simd/cli.py)
+    # a tick's messages leave back to back: the fleet session's larger send queues (simd/daemon.py)
     conf.insert_json5("transport/link/tx/queue/size/data", "16")
     conf.insert_json5("transport/link/tx/queue/size/data_low", "16")
     # as rmw_zenoh's peers: keep retrying the router instead of failing when it starts later (and

@@ -22,10 +22,10 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64
 from protocol.frames import Transform
 from simd.adapters.ros2.cdr import ENCAPSULATION, frames_blob, stamp, write_poses, write_stamps
 
-F64 = npt.NDArray[np.float64]
 #: (parent, child) of a transform
 Frames = tuple[str, str]
 #: the x, y and yaw columns of one transform of every robot of a tick

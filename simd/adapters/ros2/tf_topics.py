@@ -17,16 +17,14 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import I64
 from simd.adapters.ros2 import graph
 from simd.adapters.ros2.graph import Node
 from simd.adapters.ros2.robot_ports import TF_TYPE, Participant, RobotPorts, RosPublisher
 from simd.adapters.ros2.tf_cdr import FleetTfCdr, PoseColumns, RobotTfCdr, map_to_odom
 from simd.adapters.ros2.tf_layout import TfLayout
 from simd.core.snapshot import TickSnapshot
-
-I64 = npt.NDArray[np.int64]
 
 
 class TfTopics:

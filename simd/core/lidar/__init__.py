@@ -58,17 +58,13 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F32, F64, I64
 from simd.core.lidar import native_kernel, numpy_kernel
 from simd.core.lidar.native_kernel import KERNEL, NATIVE_UNAVAILABLE, native_spec_args
 from simd.core.lidar.outlines import outline_segments
 from simd.core.lidar.scene import StaticScene
 from simd.core.lidar.spec import EPS_CULL, STATIC_CELL, LidarSpec
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
-F32 = npt.NDArray[np.float32]
 
 __all__ = [
     "KERNEL",

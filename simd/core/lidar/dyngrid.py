@@ -5,11 +5,10 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.lidar.scene import expand
 from simd.core.lidar.spec import DYN_CELL, DYN_MAX_CELLS, EPS_CULL, GROUP_MAX, GROUP_MAX_RADIUS
 
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 
 

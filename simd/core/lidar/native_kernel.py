@@ -28,6 +28,7 @@ from typing import cast as _typed
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core import native
 from simd.core.lidar.scene import StaticScene
 from simd.core.lidar.spec import (
@@ -40,10 +41,6 @@ from simd.core.lidar.spec import (
     LidarSpec,
     beam_table,
 )
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
-
 
 # The compiled kernel's arguments (_raycast.c, cast): the static scene's index (scene.SceneArgs),
 # the sensors and moving segments of the call, the spec and the tolerances, the output rows.

@@ -37,12 +37,11 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.lidar.dyngrid import DynGrid
 from simd.core.lidar.scene import StaticScene
 from simd.core.lidar.spec import CHUNK_SENSORS, EPS_ANGLE, EPS_CULL, EPS_SEG, TWO_PI, LidarSpec, beam_table
 
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 B = npt.NDArray[np.bool_]
 FA = npt.NDArray[np.floating]
 

@@ -10,11 +10,9 @@ GIL released. Both give the same bits (tests/core/test_lidar_native.py).
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64
 from simd.core.lidar import native_kernel
-
-F64 = npt.NDArray[np.float64]
 
 
 def outline_segments(x: F64, y: F64, cos_yaw: F64, sin_yaw: F64, outline: F64, *, kernel: str | None = None) -> F64:

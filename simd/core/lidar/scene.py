@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from simd.core.lidar.spec import EPS_CULL, STATIC_CELL, STATIC_MAX_CELLS, STATIC_PIECE
-
-F64 = npt.NDArray[np.float64]
-I64 = npt.NDArray[np.int64]
 
 #: The static scene's index as the compiled kernel's first arguments (simd/core/lidar/_raycast.c).
 SceneArgs = tuple[F64, F64, I64, I64, I64, I64, float, float, float, int, int]

@@ -10,9 +10,8 @@ import functools
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
 
 TWO_PI = 2.0 * np.pi
 

@@ -5,7 +5,7 @@ Same keys and numbers as ``turtlebot3_teleop``: ``w``/``x`` change the linear ta
 ±0.01 m/s, ``a``/``d`` the angular target by +0.1/−0.1 rad/s, ``s`` or space stop at once
 (target and output to zero, no ramp); the arrow keys do the same as w/x/a/d. The output ramps
 toward the target by at most 0.005 m/s and 0.05 rad/s per loop iteration. The terminal, the
-zenoh session and the 10 Hz loop are in clients/teleop.py.
+zenoh session and the 10 Hz loop are in clients/teleop/cli.py.
 """
 
 from __future__ import annotations

@@ -12,10 +12,10 @@ from collections.abc import Sequence
 import msgspec
 
 from clients.naming import natural_key
+from fleetcommon.zenoh_config import DEFAULT_ENDPOINT
 from protocol.control import DEFAULT_DAEMON_ID, Clock, RobotRecord, WorldInfo
 from protocol.errors import ErrorReply
 from protocol.keys import DEFAULT_PREFIX
-from protocol.zenoh_config import DEFAULT_ENDPOINT
 
 
 class Outcome(msgspec.Struct, kw_only=True, omit_defaults=True):

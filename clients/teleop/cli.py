@@ -8,7 +8,7 @@ toward the target by at most 0.005 m/s and 0.05 rad/s per loop iteration, the lo
 a robot that is being driven. Targets clamp to the limits in the robot's record (no
 ``TURTLEBOT3_MODEL`` needed). ``q``, Esc or Ctrl-C quit, after one zero command.
 
-The pure part (keys, ramps, the screen's text) is clients/teleop_model.py; :class:`Teleop`
+The pure part (keys, ramps, the screen's text) is clients/teleop/model.py; :class:`Teleop`
 connects it to a daemon and to a small prompt_toolkit application that also shows odometry,
 the nearest obstacle of the latest scan and whether the robot and the daemon are there.
 """
@@ -35,14 +35,14 @@ from prompt_toolkit.styles import Style
 
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
-from clients.teleop_model import RATE_HZ, Seen, TeleopState, nearest_obstacle, screen, status
+from clients.teleop.model import RATE_HZ, Seen, TeleopState, nearest_obstacle, screen, status
+from fleetcommon.zenoh_config import ZenohOptions, options_from_args
 from protocol.control import RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import LaserScan, Odometry
-from protocol.zenoh_config import ZenohOptions, options_from_args
 
-__all__ = ["Teleop", "build_parser", "main"]  # the model: clients/teleop_model.py
+__all__ = ["Teleop", "build_parser", "main"]  # the model: clients/teleop/model.py
 
 #: A status poll of the daemon (clock query) every this many seconds.
 POLL_PERIOD = 0.5

@@ -36,7 +36,7 @@ import numpy as np
 import numpy.typing as npt
 import yaml
 
-from protocol.files import FileFormatError
+from fleetcommon.files import FileFormatError
 
 #: the largest image read or written (a 100 m x 100 m world at 2.5 cm is 16 megapixels)
 MAX_PIXELS = 16_000_000

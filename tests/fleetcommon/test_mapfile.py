@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from protocol.mapfile import MapFileError, OccupancyMap, read_map, write_map
+from fleetcommon.mapfile import MapFileError, OccupancyMap, read_map, write_map
 
 
 def _grid() -> OccupancyMap:

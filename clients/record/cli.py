@@ -10,7 +10,7 @@ keeps up with large fleets) and writes what the ROS 2 adapter would have publish
 ``/<ns>/odom``, ``/<ns>/scan``, ``/tf``, ``/tf_static`` and ``/clock``, with no ROS on either side.
 With ``--source ros`` it records the ROS topics themselves off rmw_zenoh's wire (a daemon
 started with ``--ros2``, or any ROS 2 publisher of those topics), the bytes as they came
-(clients/ros_source.py). A message's time in the bag is its sim-time stamp, as ``ros2 bag record
+(clients/record/ros_source.py). A message's time in the bag is its sim-time stamp, as ``ros2 bag record
 --use-sim-time`` records, so ``ros2 bag play --clock`` replays the run at its own pace. It shows
 its progress while it records and what it wrote when it stops (after ``--duration`` seconds of
 wall time, or Ctrl-C).
@@ -30,18 +30,18 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
-from clients import fleet_to_ros as conv
-from clients import ros_source
 from clients.api import FleetClient
-from clients.bag import BagExists, BagWriter
 from clients.fleet_args import add_daemon_args
 from clients.follow import drain, follow, stop_on_signals
+from clients.record import fleet_to_ros as conv
+from clients.record import ros_source
+from clients.record.bag import BagExists, BagWriter
+from fleetcommon.zenoh_config import options_from_args
 from protocol import FleetError
 from protocol.errors import ErrorCode
 from protocol.frames import static_transforms
 from protocol.messages import FleetOdometry, FleetScans
 from protocol.ros_domain import domain_id
-from protocol.zenoh_config import options_from_args
 
 ROBOT_TOPICS = ("odom", "scan")
 FLEET_TOPICS = ("tf", "tf_static", "clock")

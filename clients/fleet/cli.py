@@ -14,7 +14,7 @@ The spawner speaks the TurtleBot3 user's language: the positional form of the se
     fleet list
     fleet delete burger_1
     fleet daemons                              # which daemons serve the fleet
-    fleet goto tb3_0 2.0 0.5 --wait            # send it somewhere, follow it there (clients/goto.py)
+    fleet goto tb3_0 2.0 0.5 --wait            # send it somewhere, follow it there (clients/fleet/goto.py)
 
 Exit codes: 0 success; 1 refused by the daemon (its reason on stderr as
 ``fleet: <code>: <message>``); 2 usage error; 3 no daemon answered within ``--timeout``;
@@ -36,10 +36,9 @@ from dataclasses import dataclass
 import msgspec
 import zenoh
 
-from clients import goto
 from clients.api import FleetClient
-from clients.fleet_args import build_parser, spawn_parser, takes_value
-from clients.fleet_output import (
+from clients.fleet import goto
+from clients.fleet.output import (
     Outcome,
     describe_clock,
     describe_spawn,
@@ -48,16 +47,17 @@ from clients.fleet_output import (
     in_list_order,
     teleop_command,
 )
+from clients.fleet.spawn_plan import SpawnPlan, UsageError, plan_spawn
+from clients.fleet_args import build_parser, spawn_parser, takes_value
 from clients.fleetfile import FleetRobot
-from clients.spawn_plan import SpawnPlan, UsageError, plan_spawn
+from fleetcommon.zenoh_config import (
+    ZenohOptions,
+    options_from_args,
+)
 from protocol.control import Clock, RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.programs import runnable
-from protocol.zenoh_config import (
-    ZenohOptions,
-    options_from_args,
-)
 
 EXIT_OK = 0
 EXIT_REFUSED = 1

@@ -23,10 +23,10 @@ import msgspec.yaml
 import yaml
 
 from clients.api import FleetClient
+from clients.fleet.spawn_plan import UsageError
 from clients.navigation import Goal
-from clients.spawn_plan import UsageError
+from fleetcommon.files import split_location, yaml_syntax_problem
 from protocol.errors import FleetError
-from protocol.files import split_location, yaml_syntax_problem
 from protocol.navigation import NavigateRequest, NavigationFeedback, NavigationResult
 
 EXIT_OK = 0
