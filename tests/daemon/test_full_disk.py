@@ -78,7 +78,7 @@ def test_a_full_disk_keeps_the_state_file_whole_and_the_daemon_running(small_dis
         filler = fill(small_disk)
         c.step(30, cmd_vel={"tb3_0": (0.2, 0.0)})  # the fleet changes while nothing can be saved
         c.spawn("tb3_2", 2.0, 0.0)
-        assert wait_until(lambda: _lines(d, "cannot write the state file"), 15.0), d.log()
+        assert wait_until(lambda: bool(_lines(d, "cannot write the state file")), 15.0), d.log()
         time.sleep(4.5)  # two more saves' worth (every 2 s) of a full disk: still the one line
         said = _lines(d, "cannot write the state file")
         assert len(said) == 1, said
@@ -89,7 +89,7 @@ def test_a_full_disk_keeps_the_state_file_whole_and_the_daemon_running(small_dis
         assert c.clock().tick == 60 and len(c.robots()) == 3  # the daemon runs on and answers
 
         filler.unlink()  # room again: the next save writes the fleet as it is now
-        assert wait_until(lambda: _lines(d, "is written again"), 15.0), d.log()
+        assert wait_until(lambda: bool(_lines(d, "is written again")), 15.0), d.log()
         again = _lines(d, "is written again")[0]
         failed = re.search(r"after (\d+) failed saves", again)
         assert failed is not None and int(failed.group(1)) >= 1, again
