@@ -160,6 +160,7 @@ class Soak:
             "listed": len(names) if names is not None else None,
             "missing": sum(n not in names for n in self.names) if names is not None else None,
             "odom_delivered": min(odom, default=0.0), "scans_delivered": min(scans, default=0.0),
+            "load1": os.getloadavg()[0],  # the machine's (other work on a shared machine shows here)
         }  # fmt: skip
 
     # -- the events ---------------------------------------------------------------------------
@@ -386,8 +387,8 @@ def summary(r: dict[str, Any]) -> str:
         f"soak: {r['settings']['robots']} robots, {r['sim_s']:.0f} sim s in {r['wall_s']:.0f} wall s: daemon "
         f"{'alive' if r['alive'] else 'DEAD'}; requests: soak {req['soak']['sent']}, churn {req['churn'].get('sent')} "
         f"({req['churn'].get('answered')} answered, {req['churn'].get('refused')} refused), hostile "
-        f"{req['fuzz'].get('sent')} ({req['fuzz'].get('accepted_hostile')} hostile spawns/deletes accepted); lost "
-        f"replies {r['lost_replies']}; robots missing at worst {r['missing_robots_max']}, final list "
+        f"{req['fuzz'].get('sent')} ({req['fuzz'].get('accepted_hostile')} hostile spawns, deletes, steps accepted); "
+        f"lost replies {r['lost_replies']}; robots missing at worst {r['missing_robots_max']}, final list "
         f"{'exact' if r['final_list_exact'] else 'WRONG'}; RSS drift {(r['rss_drift'] or 0) * 100:+.1f} % "
         f"after warm-up; threads {r['threads']}, fds {r['fds']}; RTF median {r['rtf_median']:.3f} (min "
         f"{r['rtf_min']:.3f}); odometry delivered median {r['odom_delivered_median']:.3f} (min "

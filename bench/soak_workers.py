@@ -44,9 +44,16 @@ def _until_stdin_closes() -> threading.Event:
     return done
 
 
-def hostile_body(rng: random.Random) -> bytes:
-    """One body a careless or hostile client might send."""
-    kind = rng.randrange(7)
+#: the kinds of :func:`hostile_body` that no key may accept. The others are documents of fields
+#: a step does not know, which it takes as a valid one-tick step (unknown fields are ignored, as
+#: the protocol says; msgspec skips an unknown field's value unread, invalid UTF-8 included), so
+#: they go to every key but the step (they would step the soak's paused fleet)
+REFUSED_EVERYWHERE = (1, 2, 6)
+
+
+def hostile_body(rng: random.Random, kinds: tuple[int, ...] = tuple(range(7))) -> bytes:
+    """One body a careless or hostile client might send, of one of ``kinds``."""
+    kind = rng.choice(kinds)
     if kind == 0:
         return rng.randbytes(rng.randrange(1, 400))
     if kind == 1:
@@ -65,23 +72,26 @@ def hostile_body(rng: random.Random) -> bytes:
 
 def fuzz(endpoint: str, rate: float, seed: int) -> dict[str, Any]:
     """Hostile traffic at ``rate`` a second: half queries (each must get an answer, and a
-    hostile spawn or delete a refusal), half puts on cmd_vel keys (real robots' and ghosts')."""
+    hostile spawn, delete or step a refusal), half puts on cmd_vel keys (real robots' and
+    ghosts')."""
     rng = random.Random(seed)
     session = _session(endpoint)
     done = _until_stdin_closes()
     sent = queries = no_reply = accepted = 0
     try:
         while not done.wait(1.0 / rate):
-            body = hostile_body(rng)
             if rng.random() < 0.5:
                 key = f"{PREFIX}/{rng.choice(QUERY_KEYS)}"
+                acts = key.endswith(("spawn", "delete", "step"))
+                body = hostile_body(rng, REFUSED_EVERYWHERE if key.endswith("step") else tuple(range(7)))
                 replies = list(session.get(key, payload=body, timeout=REPLY_TIMEOUT_S))
                 queries += 1
                 if not replies:
                     no_reply += 1
-                elif replies[0].err is None and key.endswith(("spawn", "delete")):
-                    accepted += 1  # a hostile spawn or delete must be refused, with a reason
+                elif replies[0].err is None and acts:
+                    accepted += 1  # a hostile spawn, delete or step must be refused, with a reason
             else:
+                body = hostile_body(rng)
                 session.put(f"{PREFIX}/{rng.choice(['r0', 'ghost', 'r1'])}/cmd_vel", body)
             sent += 1
     finally:
