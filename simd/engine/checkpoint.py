@@ -201,6 +201,7 @@ class Saver:
         self._closed = False
         self.failures = 0  # in a row, since the last save that succeeded
         self.saves = 0
+        self.attempts = 0  # saves tried, whatever came of them
         self._failing_since = 0.0
         self._saved_time = 0.0  # the sim time of the last fleet saved
         self._logged_at = -math.inf
@@ -223,6 +224,12 @@ class Saver:
             self._write(fleet)
 
     def _write(self, fleet: SavedFleet) -> None:
+        try:
+            self._save(fleet)
+        finally:
+            self.attempts += 1  # last: whoever waits for an attempt finds it logged
+
+    def _save(self, fleet: SavedFleet) -> None:
         now = self._clock()
         try:
             self._writer(self.path, fleet)
@@ -234,7 +241,7 @@ class Saver:
                 self._logged_at = now
                 kept = f"sim time {self._saved_time:.3f} s" if self.saves else "as it was"
                 log.error("cannot write the state file %s: %s; the file keeps the fleet of before (%s); simd "
-                          "runs on and tries again every %g s (%d failed saves so far)", self.path,
+                          "runs on and tries again every %g s (failed saves so far: %d)", self.path,
                           e.strerror or e, kept, SAVE_EVERY_S, self.failures)  # fmt: skip
             return
         if self.failures:

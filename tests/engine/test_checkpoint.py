@@ -9,11 +9,11 @@ import errno
 import json
 import logging
 import os
-import threading
 from pathlib import Path
 
 import pytest
 
+from clients import wait_until
 from simd.engine import checkpoint
 from simd.engine.checkpoint import FAILURE_LOG_EVERY_S, SavedFleet, Saver
 
@@ -25,26 +25,20 @@ def _fleet(tick: int) -> SavedFleet:
 
 class Disk:
     """Writes through ``checkpoint.write`` until told it is full, then raises ENOSPC as the
-    kernel would; counts the attempts so a test can wait for one."""
+    kernel would."""
 
     def __init__(self) -> None:
         self.full = False
-        self.attempts = 0
-        self.cond = threading.Condition()
 
     def write(self, path: Path, fleet: SavedFleet) -> None:
-        try:
-            if self.full:
-                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-            checkpoint.write(path, fleet)
-        finally:
-            with self.cond:
-                self.attempts += 1
-                self.cond.notify_all()
+        if self.full:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        checkpoint.write(path, fleet)
 
-    def wait(self, attempts: int) -> None:
-        with self.cond:
-            assert self.cond.wait_for(lambda: self.attempts >= attempts, 10.0), self.attempts
+
+def _attempted(saver: Saver, attempts: int) -> None:
+    """Wait until the saver's thread has tried (and logged) ``attempts`` saves."""
+    assert wait_until(lambda: saver.attempts >= attempts, 10.0), saver.attempts
 
 
 def test_a_full_disk_keeps_the_old_file_says_so_once_and_saves_again_with_room(
@@ -55,7 +49,7 @@ def test_a_full_disk_keeps_the_old_file_says_so_once_and_saves_again_with_room(
     saver = Saver(path, writer=disk.write, clock=lambda: now[0])
     caplog.set_level(logging.WARNING, logger="simd.engine.checkpoint")
     saver.offer(_fleet(30))
-    disk.wait(1)
+    _attempted(saver, 1)
     whole = path.read_bytes()
     assert json.loads(whole)["tick"] == 30
 
@@ -63,7 +57,7 @@ def test_a_full_disk_keeps_the_old_file_says_so_once_and_saves_again_with_room(
     for i in range(5):  # five saves over 8 s of a full disk: one line
         now[0] += 2.0
         saver.offer(_fleet(60 + i))
-        disk.wait(2 + i)
+        _attempted(saver, 2 + i)
     assert path.read_bytes() == whole  # the previous state, byte for byte
     assert [p.name for p in tmp_path.iterdir()] == ["fleet.json"]  # no temporary file left behind
     lines = [r.getMessage() for r in caplog.records]
@@ -73,14 +67,14 @@ def test_a_full_disk_keeps_the_old_file_says_so_once_and_saves_again_with_room(
 
     now[0] += FAILURE_LOG_EVERY_S  # still full a minute on: one more line, with the count
     saver.offer(_fleet(70))
-    disk.wait(7)
+    _attempted(saver, 7)
     lines = [r.getMessage() for r in caplog.records]
-    assert len(lines) == 2 and "6 failed saves so far" in lines[1], lines
+    assert len(lines) == 2 and "failed saves so far: 6" in lines[1], lines
 
     disk.full = False  # room again: the next save writes, and says the trouble is over
     now[0] += 2.0
     saver.offer(_fleet(80))
-    disk.wait(8)
+    _attempted(saver, 8)
     assert json.loads(path.read_text())["tick"] == 80
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 3 and "written again (after 6 failed saves over 70 s)" in lines[2], lines
