@@ -372,7 +372,7 @@ def plot(result: dict[str, Any], path: Path) -> None:
     for e in result["events"]:
         for ax in (a, b, c):
             ax.axvline(e["t"] / 60, color="red", linestyle="--", linewidth=0.8)
-        c.text(e["t"] / 60, 0.03, f" {e['event']}", transform=c.get_xaxis_transform(), rotation=90, va="bottom",
+        c.text(e["t"] / 60, 0.97, f" {e['event']}", transform=c.get_xaxis_transform(), rotation=90, va="top",
                fontsize=8, color="red")  # fmt: skip
     c.legend(loc="lower right", fontsize=8)
     fig.tight_layout()
