@@ -36,7 +36,9 @@ def test_a_daemon_stopped_for_5_s_answers_again_without_a_burst(daemon_factory: 
 
     c.on_odom("*", on_odom)
     assert wait_until(lambda: len(odom) > 30, 10.0)
-    assert wait_until(lambda: c.clock().real_time_factor > 0.9, 15.0)  # running in real time
+    # running in real time, not in a falling-behind episode (a loaded machine's slow spell
+    # would otherwise have said its warning already)
+    assert wait_until(lambda: (k := c.clock()).real_time_factor > 0.9 and not k.falling_behind, 30.0)
 
     logged = len(d.log())  # what it says from here on
     before: Clock = c.clock()
@@ -60,6 +62,8 @@ def test_a_daemon_stopped_for_5_s_answers_again_without_a_burst(daemon_factory: 
         except FleetError:
             assert time.monotonic() < deadline, d.log()
     t_after = time.monotonic()
+    # it says it fell behind (from the first tick after the stop: this answer may have come first)
+    assert after.falling_behind or wait_until(lambda: c.clock().falling_behind, 1.0), c.clock()
     assert sorted(r.name for r in c.robots()) == names
     assert d.alive()
 
@@ -80,7 +84,9 @@ def test_a_daemon_stopped_for_5_s_answers_again_without_a_burst(daemon_factory: 
     assert wait_until(lambda: len(odom) > seen + 30, 10.0)
     # it fell behind (one warning) and caught up (one line), and is back in real time
     assert wait_until(lambda: c.clock().real_time_factor > 0.9, 20.0), c.clock()
-    assert wait_until(lambda: "caught up" in d.log()[logged:], 20.0), d.log()
-    assert d.log()[logged:].count("falling behind: running at") == 1, d.log()
+    assert wait_until(lambda: "caught up" in d.log()[logged:], 30.0), d.log()
+    warned = d.log()[logged:].count("falling behind: running at")
+    assert warned == 1 or (warned == 0 and before.falling_behind), d.log()  # once (an episode begun just
+    # before the stop was told then)
     c.spawn("tb3_late", 5.0, 0.0)  # and it takes requests as before
     assert len(c.robots()) == 4
