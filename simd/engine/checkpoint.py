@@ -23,10 +23,12 @@ speed (a robot accelerates again to its last command, which the watchdog stops a
 from __future__ import annotations
 
 import logging
+import math
 import os
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import msgspec
@@ -168,16 +170,41 @@ def restore(sim: Simulation, fleet: SavedFleet, path: Path) -> int:
     return len(fleet.robots)
 
 
+#: while saves keep failing (a full disk), at most one line about it this often
+FAILURE_LOG_EVERY_S = 60.0
+
+
 class Saver:
     """Writes the newest captured fleet on a thread of its own, so that a slow disk never
-    holds up a tick; ``save_now`` writes on the calling thread (at shutdown)."""
+    holds up a tick; ``save_now`` writes on the calling thread (at shutdown).
 
-    def __init__(self, path: Path) -> None:
+    A save that fails (a full disk, a read-only remount, a quota) leaves the previous file as
+    it was (``write`` replaces it only once the new one is whole on disk); the daemon runs
+    on, says so in one line, and the next save (within ``SAVE_EVERY_S``) tries again. While
+    the saves go on failing it says so at most once every ``FAILURE_LOG_EVERY_S``, with the
+    count, and once more when a save succeeds again, so that an operator sees both the
+    trouble and its end and the log does not fill (a full disk is often the log's disk too).
+    """
+
+    def __init__(
+        self,
+        path: Path,
+        *,
+        writer: Callable[[Path, SavedFleet], None] = write,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.path = path
+        self._writer = writer
+        self._clock = clock
         self._pending: SavedFleet | None = None
         self._cond = threading.Condition()
         self._closed = False
-        self.failures = 0
+        self.failures = 0  # in a row, since the last save that succeeded
+        self.saves = 0
+        self.attempts = 0  # saves tried, whatever came of them
+        self._failing_since = 0.0
+        self._saved_time = 0.0  # the sim time of the last fleet saved
+        self._logged_at = -math.inf
         self._thread = threading.Thread(target=self._run, name="state-saver", daemon=True)
         self._thread.start()
 
@@ -198,11 +225,32 @@ class Saver:
 
     def _write(self, fleet: SavedFleet) -> None:
         try:
-            write(self.path, fleet)
+            self._save(fleet)
+        finally:
+            self.attempts += 1  # last: whoever waits for an attempt finds it logged
+
+    def _save(self, fleet: SavedFleet) -> None:
+        now = self._clock()
+        try:
+            self._writer(self.path, fleet)
         except OSError as e:
+            if self.failures == 0:
+                self._failing_since = now
             self.failures += 1
-            if self.failures in (1, 10) or self.failures % 100 == 0:
-                log.error("cannot write the state file %s: %s (failures so far: %d)", self.path, e, self.failures)
+            if now - self._logged_at >= FAILURE_LOG_EVERY_S:
+                self._logged_at = now
+                kept = f"sim time {self._saved_time:.3f} s" if self.saves else "as it was"
+                log.error("cannot write the state file %s: %s; the file keeps the fleet of before (%s); simd "
+                          "runs on and tries again every %g s (failed saves so far: %d)", self.path,
+                          e.strerror or e, kept, SAVE_EVERY_S, self.failures)  # fmt: skip
+            return
+        if self.failures:
+            log.warning("the state file %s is written again (after %d failed saves over %.0f s)", self.path,
+                        self.failures, now - self._failing_since)  # fmt: skip
+            self.failures = 0
+            self._logged_at = -math.inf  # the next trouble is told at once
+        self.saves += 1
+        self._saved_time = fleet.tick * fleet.dt
 
     def save_now(self, fleet: SavedFleet) -> None:
         """Stop the thread and write ``fleet`` last."""
