@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 
+from protocol.errors import ErrorCode, FleetError
+
 #: Weight of the newest tick in the moving averages (about the last 50 ticks count).
 ALPHA = 0.02
 #: Ticks measured with robots before the estimate is given.
@@ -56,3 +58,12 @@ class TickCost:
             return 0
         spare = period_s - (self.fixed_s or 0.0)
         return max(0, math.floor(spare / self.per_robot_s))
+
+
+def limit_refusal(limit: int, capacity: int) -> FleetError:
+    """The refusal of a spawn beyond the robot limit, with the robots this machine keeps in
+    real time when that is known."""
+    said = f"the daemon's robot limit ({limit}) is reached"
+    if capacity:
+        said += f"; this machine keeps about {capacity} robots like these in real time (measured)"
+    return FleetError(ErrorCode.ROBOT_LIMIT, said)

@@ -171,7 +171,9 @@ class Publisher:
         """Every robot's odometry, the scans due, then the fleet topics, of one tick."""
         with self._latest_lock:
             self._latest_tick = snap
-            self._first_odom.clear()
+            if self._first_odom:  # a robot spawned after this tick ran (its odometry went ahead) keeps its first
+                named = set(snap.namespaces)
+                self._first_odom = {ns: b for ns, b in self._first_odom.items() if ns not in named}
             self._gone.clear()
             for i, ns in enumerate(snap.scan_namespaces):
                 self._latest_scan[ns] = (snap, i)
