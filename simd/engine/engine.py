@@ -7,7 +7,10 @@ goes to every adapter (simd/engine/ports.py), which is all they see of the core.
 about ``SLICE_SECONDS`` with the other requests served between them, so no request freezes
 the daemon, and a pause, resume or reset cancels what is left of it. When ticks are due is
 simd/engine/pacing.py's to say (and whether the loop keeps up); what they cost,
-simd/engine/capacity.py's.
+simd/engine/capacity.py's. Steps are simd/engine/stepping.py's, navigation requests
+simd/engine/navigation_requests.py's. After every tick and request the loop publishes its status
+(simd/engine/status.py), from which the clock and the robots are answered on other threads, and
+it never blocks in an adapter that has no room for a tick: it serves requests meanwhile.
 """
 
 from __future__ import annotations
@@ -124,9 +127,9 @@ class Engine:
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
             SpawnRequest: self._spawn,
             DeleteRequest: self._delete,
-            ListRequest: self._list,
-            WorldRequest: self._world,
-            ClockRequest: self._clock,
+            ListRequest: lambda req, reply: RobotList(self.sim.time, self.sim.states()),
+            WorldRequest: lambda req, reply: self.sim.world,
+            ClockRequest: lambda req, reply: self.clock(),
             PauseRequest: self._pause,
             ResumeRequest: self._resume,
             ResetRequest: self._reset,
@@ -215,7 +218,7 @@ class Engine:
     def run(self) -> None:
         """Serve and tick until :meth:`stop`; then cancel what is left and close the adapters."""
         start = self._wall()
-        self._start_time(start)
+        self._time.start(start, self.sim.time)
         self._make_known()
         if self._saver is not None:
             self._next_save = start  # at once: a restored or new fleet is on disk from the start
@@ -261,9 +264,6 @@ class Engine:
         if call is not None:
             self._serve(call)
             self.serve_pending()
-
-    def _start_time(self, now: float) -> None:
-        self._time.start(now, self.sim.time)
 
     def _save(self) -> None:
         assert self._saver is not None
@@ -408,15 +408,6 @@ class Engine:
         log.info("placed %s at (%.3f, %.3f, %.3f)", state.name, state.x, state.y, state.yaw)
         return state
 
-    def _list(self, req: ListRequest, reply: Reply) -> Result:
-        return RobotList(self.sim.time, self.sim.states())
-
-    def _world(self, req: WorldRequest, reply: Reply) -> Result:
-        return self.sim.world
-
-    def _clock(self, req: ClockRequest, reply: Reply) -> Result:
-        return self.clock()
-
     def _pause(self, req: PauseRequest, reply: Reply) -> Result:
         self._cancel_steps()
         self.paused = True
@@ -434,7 +425,7 @@ class Engine:
         self._cancel_steps()
         if self.paused:  # a resume while running changes nothing (no new grid, no burst)
             self.paused = False
-            self._start_time(self._wall())
+            self._time.start(self._wall(), self.sim.time)
         self._announce_clock()
         return self.clock()
 
@@ -452,7 +443,7 @@ class Engine:
         self._event(WorldReset(self.sim.epoch))
         self._changed()
         self._time.lag.stopped("the simulation was reset")
-        self._start_time(self._wall())
+        self._time.start(self._wall(), self.sim.time)
         self._announce_clock()
         return self.clock()
 

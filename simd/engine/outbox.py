@@ -5,15 +5,17 @@ hands its work to an :class:`Outbox` instead. Work keeps the engine's order (a s
 after the robot's first message, a delete's after its last), and the queue of tick data is
 short, so an adapter that falls behind slows the simulation down instead of piling up ticks.
 
-Ticks cost the most to send: a tick of 20 000 robots whose topics somebody follows takes the
-outbox longer than a user waits for an answer, and a dozen of them wait in the queue when the
-simulation outruns it. So there are two lanes. ``put`` is the data lane: ticks, and whatever
+Ticks cost the most to send: a tick of 8 000 robots whose topics somebody follows takes the
+outbox a few hundred ms, longer than a user waits for an answer. So the data lane is bounded
+in time as well as in items (``has_room`` says no once the queued ticks would take the outbox
+more than ``QUEUED_S``: then the simulation runs at the outbox's pace, one tick ahead), and what
+needs no tick data before it does not queue at all. ``put`` is the data lane: ticks, and what
 must not pass them (a deleted robot's undeclaring: a tick queued before it still names the
-robot). ``put_urgent`` is served first: replies and messages that depend on no tick data (a
-refusal, the clock, a pause's answer). ``put_ordered`` is for what must keep its order with the
-other events and replies but not with ticks (a spawned robot's first odometry, then the spawn's
-reply): it goes urgent unless an ordered item is still waiting in the data lane, then it waits
-behind that one.
+robot). ``put_urgent`` runs the work at once on the caller's thread: replies and messages that
+depend on no tick data (a refusal, the clock, a pause's answer). ``put_ordered`` is for what
+must stay behind an earlier item of the same key but not behind ticks (a spawned robot's first
+odometry, then the spawn's reply, after the undeclaring of a robot of that namespace): at once,
+unless such an item still waits in the data lane; then behind it.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import collections
 import logging
 import threading
+import time
 from collections.abc import Callable
 
 log = logging.getLogger(__name__)
@@ -29,57 +32,60 @@ log = logging.getLogger(__name__)
 #: waits: two scan periods, so that the simulation runs on while the outbox waits for a batch of
 #: scans (100 robots at --rtf 0, fleet topics: RTF 155-162 with 3, 168-190 with 12, no better with 30).
 OUTBOX_DEPTH = 12
+#: What the queued ticks may take the outbox to send (from what the last ones took) before the
+#: simulation waits: a delete's reply waits behind about this much.
+QUEUED_S = 0.05
+#: Weight of the newest item in the moving average of what a data item takes to send.
+ALPHA = 0.2
 
 Work = Callable[[], object]
 
 
 class Outbox:
-    """One thread that runs what it is given, urgent work first, each lane in order; ``put``
-    blocks while the data lane is full (see the module docstring)."""
+    """One thread that runs the data lane in order (``put`` blocks while it is full); urgent
+    and ordered work runs at once where nothing it depends on waits (the module docstring)."""
 
     def __init__(self, name: str, depth: int = OUTBOX_DEPTH) -> None:
         self._depth = depth
         self._cond = threading.Condition()
-        self._data: collections.deque[tuple[Work | None, bool]] = collections.deque()  # (work, ordered)
-        self._urgent: collections.deque[Work] = collections.deque()
+        self._data: collections.deque[tuple[Work | None, str | None]] = collections.deque()  # (work, key)
         self._unfinished = 0
-        self._ordered_waiting = 0  # ordered items put in the data lane that have not run yet
+        self._waiting_keys: collections.Counter[str] = collections.Counter()  # keyed items not yet run
+        self._item_s = 0.0  # what a data item takes to send (moving average)
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
-    def put(self, work: Work, ordered: bool = False) -> None:
-        """Queue ``work`` in the data lane (``ordered``: later ordered work waits for it)."""
-        self._put_data(work, ordered)
+    def put(self, work: Work, key: str | None = None, wait: bool = True) -> None:
+        """Queue ``work`` in the data lane; ``key``: later ordered work of that key waits for it.
+        Blocks while the lane is full, unless not ``wait`` (an event between ticks: the engine
+        asks ``has_room`` before each tick, and must not stop in the middle of a request)."""
+        with self._cond:
+            while wait and len(self._data) >= self._depth:
+                self._cond.wait()
+            self._data.append((work, key))
+            self._unfinished += 1
+            if key is not None:
+                self._waiting_keys[key] += 1
+            self._cond.notify_all()
 
     def put_urgent(self, work: Work) -> None:
-        """Queue ``work`` ahead of the data lane (it never blocks)."""
-        with self._cond:
-            self._urgent.append(work)
-            self._unfinished += 1
-            self._cond.notify_all()
+        """Run ``work`` now, on this thread (it depends on nothing queued)."""
+        _run_one(work)
 
-    def put_ordered(self, work: Work) -> None:
-        """Queue ``work`` after every ordered item before it, but ahead of tick data when it can."""
+    def put_ordered(self, work: Work, key: str) -> None:
+        """Run ``work`` now, unless an item of ``key`` waits in the data lane: then behind it."""
         with self._cond:
-            if self._ordered_waiting == 0:
-                self._urgent.append(work)
-                self._unfinished += 1
-                self._cond.notify_all()
-                return
-        self._put_data(work, True)
-
-    def _put_data(self, work: Work | None, ordered: bool) -> None:
-        with self._cond:
-            while len(self._data) >= self._depth:
-                self._cond.wait()
-            self._data.append((work, ordered))
-            self._unfinished += 1
-            self._ordered_waiting += ordered
-            self._cond.notify_all()
+            behind = self._waiting_keys[key] > 0
+        if behind:
+            self.put(work, key, wait=False)
+        else:
+            _run_one(work)
 
     def has_room(self) -> bool:
-        """Whether ``put`` would queue at once instead of waiting."""
-        return len(self._data) < self._depth
+        """Whether a tick put now would not make the queue longer than it should be (in items,
+        and in the time the queued items would take to send)."""
+        n = len(self._data)
+        return n == 0 or (n < self._depth and n * self._item_s < QUEUED_S)
 
     def idle(self) -> bool:
         """Whether everything put so far has run: then work done on the caller's thread
@@ -89,24 +95,22 @@ class Outbox:
     def _run(self) -> None:
         while True:
             with self._cond:
-                while not self._urgent and not self._data:
+                while not self._data:
                     self._cond.wait()
-                ordered = False
-                if self._urgent:
-                    work: Work | None = self._urgent.popleft()
-                else:
-                    work, ordered = self._data.popleft()
+                work, key = self._data.popleft()
                 self._cond.notify_all()  # room in the data lane
             if work is None:
                 return
-            try:
-                work()
-            except Exception:  # a failed put or reply must not stop the ones after it
-                log.exception("sending failed")
-            finally:
-                with self._cond:
-                    self._unfinished -= 1
-                    self._ordered_waiting -= ordered
+            t0 = time.perf_counter()
+            _run_one(work)
+            took = time.perf_counter() - t0
+            with self._cond:
+                self._item_s += ALPHA * (took - self._item_s)
+                self._unfinished -= 1
+                if key is not None:
+                    self._waiting_keys[key] -= 1
+                    if not self._waiting_keys[key]:
+                        del self._waiting_keys[key]
 
     def flush(self, timeout: float = 5.0) -> bool:
         """Wait until everything put so far has run (tests, and a clean shutdown)."""
@@ -116,5 +120,14 @@ class Outbox:
 
     def close(self, timeout: float = 5.0) -> None:
         """Run what is queued, then stop."""
-        self._put_data(None, False)
+        with self._cond:
+            self._data.append((None, None))
+            self._cond.notify_all()
         self._thread.join(timeout)
+
+
+def _run_one(work: Work) -> None:
+    try:
+        work()
+    except Exception:  # a failed put or reply must not stop the ones after it
+        log.exception("sending failed")

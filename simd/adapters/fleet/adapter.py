@@ -124,12 +124,10 @@ class FleetAdapter:
         def deliver(result: Result | FleetError) -> None:
             # a step's reply is what a lockstep client waits for, and nothing it needs can be
             # queued behind an idle outbox: sent at once, it saves a thread switch a step
-            if isinstance(result, StepResult) and self.outbox.idle():
+            if (isinstance(result, StepResult) and self.outbox.idle()) or isinstance(result, FleetError):
                 send(result)
-            elif isinstance(result, FleetError):  # a refusal changed nothing: nothing to follow
-                self.outbox.put_urgent(partial(send, result))
             else:
-                lane(self.outbox, partial(send, result))
+                lane(self.outbox, result, partial(send, result))
 
         try:
             self.engine.submit(request, deliver)
@@ -268,18 +266,19 @@ class FleetAdapter:
             robot = event.robot
             self._records = {**self._records, robot.namespace: convert.robot_record(robot, self.keys, self.daemon_id)}
             # a new robot's first odometry need not wait for ticks that do not name it
-            self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time))
+            self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time), robot.namespace)
         elif isinstance(event, Deleted):
             self._records = {k: v for k, v in self._records.items() if k != event.robot.namespace}
             # behind the ticks queued before it: they still name the robot
-            self.outbox.put(partial(self.publisher.remove_robot, event.robot.namespace), ordered=True)
+            ns = event.robot.namespace
+            self.outbox.put(partial(self.publisher.remove_robot, ns), ns, wait=False)
             self.navigation.forget(event.robot.namespace)
         elif isinstance(event, Navigation):
-            self.outbox.put(partial(self.navigation.publish, event.events), ordered=True)
+            self.outbox.put(partial(self.navigation.publish, event.events), wait=False)
 
     def on_clock(self, clock: Clock) -> None:
-        # ahead of tick data: the clock topic is what tells a user the daemon lives (and it
-        # keeps its own order, every clock in this one lane)
+        # at once, ahead of tick data: the clock topic is what tells a user the daemon lives (and
+        # it keeps its own order, every clock sent from the simulation thread)
         self.outbox.put_urgent(partial(self.publisher.publish_clock, encode(clock)))
 
     def ready(self) -> bool:
@@ -309,13 +308,14 @@ def _answer(pending: requests.Pending, message: object) -> None:
         pending.ok(message)
 
 
-def _lane(request: object) -> Callable[[Outbox, Callable[[], object]], None]:
+def _lane(request: object) -> Callable[[Outbox, Result, Callable[[], object]], None]:
     """Where a request's reply waits in the outbox: it follows what the request caused. A
-    spawn's follows the robot's first odometry (ordered, ahead of ticks); a pause's or resume's
-    follows their clock (urgent); a delete's, a reset's, a step's and navigation's follow ticks
-    and events (the data lane: a client that reset must not hear of the old world after)."""
+    spawn's follows the robot's first odometry (behind nothing else); a pause's or resume's
+    their clock (sent at once); a delete's, a reset's, a step's and navigation's follow the
+    ticks and events queued before (the data lane: a client that reset must not hear of the old
+    world after)."""
     if isinstance(request, SpawnRequest):
-        return Outbox.put_ordered
+        return lambda outbox, result, work: outbox.put_ordered(work, getattr(result, "namespace", ""))
     if isinstance(request, (PauseRequest, ResumeRequest, ClockRequest, WorldRequest, ListRequest)):
-        return Outbox.put_urgent
-    return lambda outbox, work: outbox.put(work, ordered=True)
+        return lambda outbox, result, work: outbox.put_urgent(work)
+    return lambda outbox, result, work: outbox.put(work, wait=False)
