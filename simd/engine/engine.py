@@ -242,7 +242,7 @@ class Engine:
                 if self.paused:
                     self._gather_commands()  # keep the adapters' buffers drained while time stands still
                     continue
-                if self._pacer.due(self._wall()):
+                if self._pacer.due(self._wall()) and self._adapters_ready():  # else: served above, until ready
                     self.tick()
                     now = self._wall()
                     self._time.ticked(now, lambda: self._time.load(len(self.sim)))

@@ -270,8 +270,11 @@ class FleetAdapter:
         elif isinstance(event, Deleted):
             self._records = {k: v for k, v in self._records.items() if k != event.robot.namespace}
             # behind the ticks queued before it: they still name the robot
-            ns = event.robot.namespace
-            self.outbox.put(partial(self.publisher.remove_robot, ns), ns, wait=False)
+            # at once, so that the delete is answered at once; the ticks queued before it leave
+            # the robot out, and its encoders are forgotten after them
+            ns, sim = event.robot.namespace, self.engine.sim
+            self.outbox.put_urgent(partial(self.publisher.remove_robot, ns, (sim.epoch, sim.tick)))
+            self.outbox.put(partial(self.publisher.forget, ns), wait=False)
             self.navigation.forget(event.robot.namespace)
         elif isinstance(event, Navigation):
             self.outbox.put(partial(self.navigation.publish, event.events), wait=False)
@@ -310,12 +313,12 @@ def _answer(pending: requests.Pending, message: object) -> None:
 
 def _lane(request: object) -> Callable[[Outbox, Result, Callable[[], object]], None]:
     """Where a request's reply waits in the outbox: it follows what the request caused. A
-    spawn's follows the robot's first odometry (behind nothing else); a pause's or resume's
-    their clock (sent at once); a delete's, a reset's, a step's and navigation's follow the
-    ticks and events queued before (the data lane: a client that reset must not hear of the old
-    world after)."""
+    spawn's follows the robot's first odometry (behind nothing else); a delete's the robot's
+    undeclaring, a pause's or resume's their clock (all sent at once); a reset's, a step's and
+    navigation's follow the ticks and events queued before (the data lane: a client that reset
+    must not hear of the old world after)."""
     if isinstance(request, SpawnRequest):
         return lambda outbox, result, work: outbox.put_ordered(work, getattr(result, "namespace", ""))
-    if isinstance(request, (PauseRequest, ResumeRequest, ClockRequest, WorldRequest, ListRequest)):
+    if isinstance(request, (DeleteRequest, PauseRequest, ResumeRequest, ClockRequest, WorldRequest, ListRequest)):
         return lambda outbox, result, work: outbox.put_urgent(work)
     return lambda outbox, result, work: outbox.put(work, wait=False)
