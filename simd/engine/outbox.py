@@ -2,20 +2,22 @@
 
 The engine calls adapters on the simulation thread, which must go on at once; an adapter
 hands its work to an :class:`Outbox` instead. Work keeps the engine's order (a spawn's reply
-after the robot's first message, a delete's after its last), and the queue of tick data is
+after the robot's first message, a step's after its last tick), and the queue of tick data is
 short, so an adapter that falls behind slows the simulation down instead of piling up ticks.
 
 Ticks cost the most to send: a tick of 8 000 robots whose topics somebody follows takes the
 outbox a few hundred ms, longer than a user waits for an answer. So the data lane is bounded
 in time as well as in items (``has_room`` says no once the queued ticks would take the outbox
 more than ``QUEUED_S``: then the simulation runs at the outbox's pace, one tick ahead), and what
-needs no tick data before it does not queue at all. ``put`` is the data lane: ticks, and what
-must not pass them (a deleted robot's undeclaring: a tick queued before it still names the
-robot). ``put_urgent`` runs the work at once on the caller's thread: replies and messages that
-depend on no tick data (a refusal, the clock, a pause's answer). ``put_ordered`` is for what
-must stay behind an earlier item of the same key but not behind ticks (a spawned robot's first
-odometry, then the spawn's reply, after the undeclaring of a robot of that namespace): at once,
-unless such an item still waits in the data lane; then behind it.
+needs no tick data before it does not queue at all.
+
+``put`` is the data lane: ticks, and what must follow them (a reset's reply must not be followed
+by the old world's ticks). ``put_urgent`` runs the work at once on the
+caller's thread: replies and messages that depend on no tick data (a refusal, the clock, a
+pause's answer, a deleted robot's undeclaring, which the ticks queued before it then leave out).
+``put_ordered`` is for what must stay behind an earlier data-lane item of the same key but not
+behind ticks (a spawned robot's first odometry, then the spawn's reply): at once, unless such an
+item still waits in the data lane; then behind it.
 """
 
 from __future__ import annotations
