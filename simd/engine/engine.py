@@ -1,17 +1,14 @@
 """The engine: one thread owns the simulation, paces it, and serves typed requests.
 
-It wakes for whichever comes first, the next tick's deadline or a request, so spawns are
+It wakes for whichever comes first, the next tick's deadline or a request, so requests are
 answered within milliseconds while ticks stay on a fixed sim-time grid. Each tick's snapshot
 goes to every adapter (simd/engine/ports.py), which is all they see of the core. In lockstep
-(or while paused) time advances only through step requests; a long step runs in slices of
-about ``SLICE_SECONDS`` with the other requests served between them, so no request freezes
-the daemon, and a pause, resume or reset cancels what is left of it. When ticks are due is
-simd/engine/pacing.py's to say (and whether the loop keeps up); what they cost,
-simd/engine/capacity.py's. Steps are simd/engine/stepping.py's, navigation requests
-simd/engine/navigation_requests.py's. After every tick and request the loop publishes its status
-(simd/engine/status.py), from which the clock and the robots are answered on other threads, and
-it never blocks in an adapter that has no room for a tick: it serves requests meanwhile.
-"""
+(or while paused) time advances only through steps (simd/engine/stepping.py), run in slices of
+about ``SLICE_SECONDS`` with the other requests served between them; a pause, resume or reset
+cancels what is left. Pacing and load: simd/engine/pacing.py and capacity.py. After every tick
+and request the loop publishes its status (simd/engine/status.py), from which the clock and the
+robots are answered on other threads, and it never blocks in an adapter without room for a
+tick: it serves requests meanwhile."""
 
 from __future__ import annotations
 
@@ -53,7 +50,6 @@ from simd.engine.ports import (
     Event,
     GhostSource,
     Navigation,
-    OwnRobots,
     PlaceRequest,
     Reply,
     Result,
@@ -74,8 +70,9 @@ MAX_PENDING_REQUESTS = 4096
 CLOCK_EVERY = 3
 #: Wall time a step runs before the requests that arrived meanwhile are served.
 SLICE_SECONDS = 0.02
-#: How long the loop waits for a request while an adapter has no room for the next tick.
-ROOM_POLL_S = 0.002
+#: The longest wait for an adapter's room (it says it has room through :meth:`Engine.wake`).
+ROOM_POLL_S = 0.05
+_WAKE = "wake"  # what Engine.wake puts in the inbox
 
 
 @dataclass
@@ -108,7 +105,8 @@ class Engine:
         self.adapters: list[Adapter] = []
         self.stop_event = threading.Event()
         self._wall = clock
-        self._inbox: queue.Queue[_Call | None] = queue.Queue(MAX_PENDING_REQUESTS)
+        self._inbox: queue.Queue[_Call | str | None] = queue.Queue(MAX_PENDING_REQUESTS)
+        self._waiting_for_room = False
         self._steps: collections.deque[StepJob] = collections.deque()
         self._planner = StepPlanner()
         self._pending_commands: dict[str, tuple[float, float]] = {}
@@ -120,7 +118,6 @@ class Engine:
         self._board = StatusBoard()
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
-        self._models: tuple[list[str] | None, list[str]] = (None, [])  # (namespaces, their models)
         self._saver = saver  # --state: the fleet written as it runs
         self._next_save = math.inf
         self._navigation = NavigationRequests(sim, navigator, self._event, self._changed)
@@ -158,6 +155,15 @@ class Engine:
             self._inbox.put_nowait(_Call(request, reply))
         except queue.Full:
             raise FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry") from None
+
+    def wake(self) -> None:
+        """An adapter has room for a tick again (any thread): the loop goes on if it waits."""
+        if self._waiting_for_room:
+            self._waiting_for_room = False
+            try:
+                self._inbox.put_nowait(_WAKE)
+            except queue.Full:  # then it wakes for a request anyway
+                pass
 
     def stop(self) -> None:
         self.stop_event.set()
@@ -259,8 +265,10 @@ class Engine:
         return all(getattr(a, "ready", _always)() for a in self.adapters)
 
     def _serve_while_waiting(self) -> None:
-        """Serve what comes for a moment instead of blocking in a full adapter."""
-        call = self._next_call(ROOM_POLL_S)
+        """Serve what comes until an adapter has room (it wakes the loop) instead of blocking in it."""
+        self._waiting_for_room = True
+        call = None if self._adapters_ready() else self._next_call(ROOM_POLL_S)  # room came meanwhile: on
+        self._waiting_for_room = False
         if call is not None:
             self._serve(call)
             self.serve_pending()
@@ -285,7 +293,7 @@ class Engine:
             return None
         if call is None:  # stop() woke us
             self.stop_event.set()
-        return call
+        return call if isinstance(call, _Call) else None  # (None too for a wake-up)
 
     def serve_pending(self) -> None:
         """Serve every request waiting now (the loop does this between ticks and slices)."""
@@ -309,7 +317,7 @@ class Engine:
         sim.command_many(commands)
         self._pending_commands = {}
         if self.ghost_source is not None:
-            ghosts = self.ghost_source.take(self._own_robots(), stepping=bool(self._steps))
+            ghosts = self.ghost_source.take(self._board.own_robots(self.sim), stepping=bool(self._steps))
             if ghosts is not None:
                 sim.set_ghosts(ghosts)
         if self._steps:  # a step's own commands hold for all of its ticks
@@ -336,12 +344,6 @@ class Engine:
                 self._announce_clock()
         self._time.tick_cost(len(snap.namespaces))
         return snap
-
-    def _own_robots(self) -> OwnRobots:
-        t = self.sim.robots
-        if self._models[0] is not t.namespaces:
-            self._models = (t.namespaces, [r.model.name for r in t.robots])
-        return OwnRobots(self.sim.tick, t.namespaces, self._models[1], t.x, t.y, t.yaw)
 
     def _announce_clock(self) -> None:
         clock = self.clock()

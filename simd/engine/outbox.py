@@ -47,8 +47,10 @@ class Outbox:
     """One thread that runs the data lane in order (``put`` blocks while it is full); urgent
     and ordered work runs at once where nothing it depends on waits (the module docstring)."""
 
-    def __init__(self, name: str, depth: int = OUTBOX_DEPTH) -> None:
+    def __init__(self, name: str, depth: int = OUTBOX_DEPTH, on_room: Callable[[], None] | None = None) -> None:
+        """``on_room``: called (on this outbox's thread) whenever an item has run and there is room."""
         self._depth = depth
+        self._on_room = on_room
         self._cond = threading.Condition()
         self._data: collections.deque[tuple[Work | None, str | None]] = collections.deque()  # (work, key)
         self._unfinished = 0
@@ -113,6 +115,8 @@ class Outbox:
                     self._waiting_keys[key] -= 1
                     if not self._waiting_keys[key]:
                         del self._waiting_keys[key]
+            if self._on_room is not None and self.has_room():
+                self._on_room()
 
     def flush(self, timeout: float = 5.0) -> bool:
         """Wait until everything put so far has run (tests, and a clean shutdown)."""

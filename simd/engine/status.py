@@ -21,6 +21,7 @@ from protocol.messages import Time
 from simd.core.robots import Robot, RobotTable
 from simd.core.sim import Simulation
 from simd.engine.pacing import Timekeeper
+from simd.engine.ports import OwnRobots
 
 F64 = npt.NDArray[np.float64]
 
@@ -99,6 +100,15 @@ class StatusBoard:
     def __init__(self) -> None:
         self._of: list[str] | None = None  # the table's namespaces list the copy was made at
         self._robots: list[Robot] = []
+        self._models: tuple[list[str] | None, list[str]] = (None, [])  # (namespaces, their models)
+
+    def own_robots(self, sim: Simulation) -> OwnRobots:
+        """This daemon's robots as the next tick is about to run: what the other daemons of a
+        shared fleet place as ghosts (simd/engine/ports.py)."""
+        t = sim.robots
+        if self._models[0] is not t.namespaces:
+            self._models = (t.namespaces, [r.model.name for r in t.robots])
+        return OwnRobots(sim.tick, t.namespaces, self._models[1], t.x, t.y, t.yaw)
 
     def status(self, sim: Simulation, keeper: Timekeeper, paused: bool, lockstep: bool, measured_cost: bool) -> Status:
         t = sim.robots

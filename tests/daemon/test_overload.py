@@ -102,16 +102,16 @@ def test_a_few_robots_give_no_capacity_estimate_rather_than_a_wrong_one(daemon_f
 
 @pytest.mark.slow
 def test_the_control_plane_answers_while_the_daemon_cannot_keep_up(daemon_factory: Callable[..., Daemon]) -> None:
-    """2 000 burgers at four times real time, which this machine cannot keep, every robot's
+    """5 000 burgers at four times real time, which this machine cannot keep, every robot's
     odometry and scans wanted (a subscriber of one robot's topics turns them on for all) and
     every robot driven at 10 Hz: the clock, the list, the world, a spawn beyond the limit, a
-    pause and a resume are each answered within half a second, every time. The daemon used to
+    pause and a resume are each answered within a second, every time. The daemon used to
     answer them behind the ticks queued for sending (bench.overload: seconds at 8 000 robots)."""
-    n, cols = 2000, 45
+    n, cols, gap = 5000, 80, 1.2
     d = daemon_factory("--world", "empty", "--no-noise", "--max-robots", str(n), "--paused", "--rtf", "4",
                        "--cmd-timeout", "0")  # fmt: skip
     c = d.client(timeout=30.0)
-    grid = [SpawnRequest(name=f"r{i}", x=float(i % cols) * 2 - 44, y=float(i // cols) * 2 - 44) for i in range(n)]
+    grid = [SpawnRequest(name=f"r{i}", x=(i % cols) * gap - 47.4, y=(i // cols) * gap - 37.8) for i in range(n)]
     c.spawn_many(grid)
     heard = [0]
     for topic in ("odom", "scan"):
@@ -148,7 +148,7 @@ def test_the_control_plane_answers_while_the_daemon_cannot_keep_up(daemon_factor
             took.setdefault("refused spawn", []).append(time.monotonic() - t0)
             time.sleep(0.3)
         worst = {kind: max(s) for kind, s in took.items()}
-        assert all(s < 0.5 for s in worst.values()), worst
+        assert all(s < 1.0 for s in worst.values()), worst
         assert heard[0] > 0 and d.alive()
     finally:
         stop.set()

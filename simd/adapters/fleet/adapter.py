@@ -93,7 +93,7 @@ class FleetAdapter:
         self._world_info = convert.world_info(engine.sim.world)
         self.publisher = Publisher(session, keys, spec)
         self.commands = CommandIntake(command_session or session, keys)
-        self.outbox = Outbox("fleet-out")
+        self.outbox = Outbox("fleet-out", on_room=engine.wake)  # the engine waits for room, never in a put
         # this daemon's clock alone, under its id: what its healthcheck asks in a shared fleet
         mine = [requests.Route(keys.daemon_clock(daemon_id), ClockRequest, acts=False)] if daemon_id else []
         self._queryables: list[Any] = requests.declare(session, keys, self._submit, mine)
