@@ -5,6 +5,7 @@ bounds that hold whatever the machine's speed, or conditions waited for, never t
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import threading
@@ -12,11 +13,17 @@ import time
 from collections.abc import Callable
 
 import pytest
+import zenoh
 
-from clients import wait_until
+from clients import FleetClient, wait_until
 from protocol import FleetError
 from protocol.control import SpawnRequest
-from tests.conftest import ROOT, Daemon
+from protocol.keys import Keys
+from simd.adapters.fleet.adapter import FleetAdapter
+from simd.core.sim import SimConfig, Simulation
+from simd.core.worldfile import load_world
+from simd.engine import Engine
+from tests.conftest import ROOT, Daemon, free_port
 
 DT = 1 / 30
 
@@ -153,3 +160,75 @@ def test_the_control_plane_answers_while_the_daemon_cannot_keep_up(daemon_factor
     finally:
         stop.set()
         thread.join(5.0)
+
+
+class _HeavyTicks:
+    """An adapter whose every tick keeps the simulation thread busy for ``seconds``: a tick
+    of a fleet far too large for the machine, without spawning one."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.ticks = 0
+
+    def on_tick(self, snapshot: object) -> None:
+        self.ticks += 1
+        time.sleep(self.seconds)
+
+    def on_event(self, event: object) -> None:
+        pass
+
+    def on_clock(self, clock: object) -> None:
+        pass
+
+    def take_commands(self) -> dict[str, tuple[float, float]]:
+        return {}
+
+    def dropped_commands(self) -> int:
+        return 0
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.slow
+def test_looking_never_waits_for_a_tick_however_long_it_takes() -> None:
+    """Ticks of 2 s each (the simulation thread busy in every one): the clock, the world, the
+    robot list and a spawn refused at the robot limit are answered within 0.5 s every time,
+    from the status the simulation publishes (they used to wait for the tick to end: up to 2 s)."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=2))
+    heavy = _HeavyTicks(2.0)
+    with zenoh.open(conf) as session:
+        engine = Engine(sim)
+        adapter = FleetAdapter(session, Keys(), engine)
+        for request in _grid(2):
+            engine.submit(request, lambda r: None)
+        engine.serve_pending()
+        engine.attach(heavy)
+        thread = threading.Thread(target=engine.run, daemon=True)
+        thread.start()
+        try:
+            with FleetClient(f"tcp/127.0.0.1:{port}", timeout=10.0) as c:
+                assert wait_until(lambda: heavy.ticks >= 1, 10.0)  # the heavy ticks have begun
+                took: dict[str, list[float]] = {}
+                for _ in range(3):
+                    for kind, ask in (("clock", c.clock), ("world", c.world), ("robots", c.robots)):
+                        t0 = time.monotonic()
+                        ask()
+                        took.setdefault(kind, []).append(time.monotonic() - t0)
+                    t0 = time.monotonic()
+                    with pytest.raises(FleetError, match="robot limit"):
+                        c.spawn("one_more", 4.0, 4.0)
+                    took.setdefault("refused spawn", []).append(time.monotonic() - t0)
+                    time.sleep(0.3)
+                assert len(c.robots()) == 2
+            worst = {kind: max(s) for kind, s in took.items()}
+            assert all(s < 0.5 for s in worst.values()), worst
+        finally:
+            engine.stop()
+            thread.join(10.0)
+            adapter.close()
