@@ -291,6 +291,8 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.role == "driver":
         return driver_main(args.endpoint, args.robots, args.seed)
+    if any(n < 1 for n in args.sizes):
+        p.error("--sizes must be at least 1")
     signal.signal(signal.SIGTERM, raise_exit)
     info = machine_info()
     print(f"machine: {machine_line(info)}")
