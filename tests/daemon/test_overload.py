@@ -112,8 +112,9 @@ def test_the_control_plane_answers_while_the_daemon_cannot_keep_up(daemon_factor
     """5 000 burgers at four times real time, which this machine cannot keep, every robot's
     odometry and scans wanted (a subscriber of one robot's topics turns them on for all) and
     every robot driven at 10 Hz: the clock, the list, the world, a spawn beyond the limit, a
-    pause and a resume are each answered within a second, every time. The daemon used to
-    answer them behind the ticks queued for sending (bench.overload: seconds at 8 000 robots)."""
+    pause and a resume are each answered within a second, every time: a guard on the whole path
+    (the code before this test answered within it too at this size; the test below pins what
+    changed: looking never waits for a tick)."""
     n, cols, gap = 5000, 80, 1.2
     d = daemon_factory("--world", "empty", "--no-noise", "--max-robots", str(n), "--paused", "--rtf", "4",
                        "--cmd-timeout", "0")  # fmt: skip
