@@ -141,8 +141,9 @@ class Simulation:
 
     # -- spawn / delete -------------------------------------------------------------------
 
-    def validate_spawn(self, req: SpawnRequest) -> tuple[str, str, RobotModel, float, float, float]:
-        """Check a spawn request against every rule; return the normalised fields."""
+    def check_spawn_fields(self, req: SpawnRequest) -> tuple[str, str, RobotModel]:
+        """The checks of a spawn request that need nothing of the world (names, model, finite
+        pose), in the order :meth:`validate_spawn` makes them; any thread may call it."""
         name = check_name(req.name, "name")
         namespace = check_name(req.namespace if req.namespace else name, "namespace")
         model = MODELS.get(req.model)
@@ -158,6 +159,11 @@ class Simulation:
             v = getattr(req, fname)
             if not math.isfinite(v):
                 raise FleetError(ErrorCode.NON_FINITE, f"{fname} must be finite, got {v}", fname)
+        return name, namespace, model
+
+    def validate_spawn(self, req: SpawnRequest) -> tuple[str, str, RobotModel, float, float, float]:
+        """Check a spawn request against every rule; return the normalised fields."""
+        name, namespace, model = self.check_spawn_fields(req)
         if len(self.robots) >= self.config.max_robots:
             raise FleetError(
                 ErrorCode.ROBOT_LIMIT,

@@ -1,14 +1,13 @@
 """The engine: one thread owns the simulation, paces it, and serves typed requests.
 
-It wakes for whichever comes first, the next tick's deadline or a request, so spawns are
+It wakes for whichever comes first, the next tick's deadline or a request, so requests are
 answered within milliseconds while ticks stay on a fixed sim-time grid. Each tick's snapshot
 goes to every adapter (simd/engine/ports.py), which is all they see of the core. In lockstep
-(or while paused) time advances only through step requests; a long step runs in slices of
-about ``SLICE_SECONDS`` with the other requests served between them, so no request freezes
-the daemon, and a pause, resume or reset cancels what is left of it. When ticks are due is
-simd/engine/pacing.py's to say (and whether the loop keeps up); what they cost,
-simd/engine/capacity.py's.
-"""
+(or while paused) time advances only through steps (simd/engine/stepping.py), run in slices of
+about ``SLICE_SECONDS`` with the other requests served between them; a pause, resume or reset
+cancels what is left. Pacing and load: simd/engine/pacing.py and capacity.py. After every tick and
+request the loop publishes its status (simd/engine/status.py), from which the clock and the robots
+are answered on other threads; it never blocks in an adapter without room: it serves requests."""
 
 from __future__ import annotations
 
@@ -19,14 +18,10 @@ import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-import numpy.typing as npt
-
 from protocol.control import (
-    MAX_STEP_TICKS,
     Clock,
     ClockRequest,
     DeleteRequest,
@@ -40,32 +35,31 @@ from protocol.control import (
     WorldRequest,
 )
 from protocol.errors import ErrorCode, FleetError
-from protocol.messages import Time
 from protocol.navigation import CancelRequest, NavigateRequest, NavigationRequest, NavigationStateRequest
-from simd.core.robots import RobotTable
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
-from simd.engine.capacity import TickCost
+from simd.engine.capacity import limit_refusal
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
-from simd.engine.observe import LatestScans, observe_packed
-from simd.engine.pacing import LagWatch, Pacer, RtfMeter
+from simd.engine.navigation_requests import NavigationRequests
+from simd.engine.observe import LatestScans
+from simd.engine.pacing import Timekeeper
 from simd.engine.ports import (
     Adapter,
     Deleted,
+    Event,
     GhostSource,
     Navigation,
-    ObservedArrays,
-    OwnRobots,
     PlaceRequest,
     Reply,
     Result,
     RobotList,
-    ScanRow,
     SimulationSetup,
     Spawned,
     StepResult,
     WorldReset,
 )
+from simd.engine.status import Status, StatusBoard
+from simd.engine.stepping import StepJob, StepPlanner, step_result
 from simd.nav.navigator import Navigator
 
 log = logging.getLogger(__name__)
@@ -76,77 +70,15 @@ MAX_PENDING_REQUESTS = 4096
 CLOCK_EVERY = 3
 #: Wall time a step runs before the requests that arrived meanwhile are served.
 SLICE_SECONDS = 0.02
+#: The longest wait for an adapter's room (it says it has room through :meth:`Engine.wake`).
+ROOM_POLL_S = 0.05
+_WAKE = "wake"  # what Engine.wake puts in the inbox
 
 
 @dataclass
 class _Call:
     request: Request | NavigationRequest | PlaceRequest
     reply: Reply
-
-
-@dataclass
-class _StepJob:
-    """A step request being run, slice by slice. Its commands (``names[k]`` at ``v[k]``,
-    ``w[k]``) are applied at every tick, as table rows while the table's rows stay put (a
-    spawn or delete between two slices makes the engine look the namespaces up again)."""
-
-    request: StepRequest
-    reply: Reply
-    names: list[str]
-    v: npt.NDArray[np.float64]
-    w: npt.NDArray[np.float64]
-    ran: int = 0
-    rows_of: int | None = None  # the table generation ``rows`` belong to
-    rows: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    here: npt.NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))  # names still in the world
-    #: the table rows of ``request.observe``, found when the request came (valid while the
-    #: table's generation is ``watched_of``)
-    watched: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    watched_of: int | None = None
-
-    def apply(self, sim: Simulation, nav: Navigator | None = None) -> None:
-        """Command this step's robots for the coming tick (those of them that navigate: only
-        with commands other than zero, which override the navigator as cmd_vel does)."""
-        t = sim.robots
-        if self.rows_of != t.generation:
-            found = [t.row_of(ns) for ns in self.names]
-            self.here = np.array([i is not None for i in found], dtype=bool)
-            self.rows = np.array([i for i in found if i is not None], dtype=np.int64)
-            self.rows_of = t.generation
-        if len(self.rows):
-            all_here = len(self.rows) == len(self.names)
-            v, w = (self.v, self.w) if all_here else (self.v[self.here], self.w[self.here])
-            sim.command_rows(self.rows, v, w)
-            if nav is not None and nav.busy:
-                names = self.names if all_here else [n for n, h in zip(self.names, self.here, strict=True) if h]
-                nav.overridden_by_step(names, v, w, sim.time)
-
-
-class RowsMemo:
-    """The table rows of the name list a learner sends step after step: a thousand names
-    looked up again cost ~0.1 ms a step, comparing the list with the last one ~0.01 ms. Valid
-    while the table's generation is the one the rows were found in (a spawn or delete
-    changes it)."""
-
-    def __init__(self, lookup: Callable[[RobotTable, list[str]], list[int | None]]) -> None:
-        self._lookup = lookup
-        self._of: int | None = None
-        self._names: list[str] = []
-        self._rows: list[int | None] = []
-
-    def rows(self, table: RobotTable, names: list[str]) -> list[int | None]:
-        """The row of each name (None where no robot has it), as ``lookup`` finds them."""
-        if self._of != table.generation or names != self._names:
-            self._rows, self._names, self._of = self._lookup(table, names), list(names), table.generation
-        return self._rows
-
-
-def _command_rows(table: RobotTable, names: list[str]) -> list[int | None]:
-    """The rows of a step's commanded namespaces; a namespace given twice is refused."""
-    if len(set(names)) != len(names):
-        twice = next(n for n in names if names.count(n) > 1)
-        raise FleetError(ErrorCode.INVALID_VALUE, f"commands name {twice!r} more than once", "commands")
-    return [table.row_of(ns) for ns in names]
 
 
 class Engine:
@@ -174,39 +106,37 @@ class Engine:
         self.adapters: list[Adapter] = []
         self.stop_event = threading.Event()
         self._wall = clock
-        self._inbox: queue.Queue[_Call | None] = queue.Queue(MAX_PENDING_REQUESTS)
-        self._steps: collections.deque[_StepJob] = collections.deque()
+        self._inbox: queue.Queue[_Call | str | None] = queue.Queue(MAX_PENDING_REQUESTS)
+        self._waiting_for_room = False
+        self._steps: collections.deque[StepJob] = collections.deque()
+        self._planner = StepPlanner()
         self._pending_commands: dict[str, tuple[float, float]] = {}
         self._scans = LatestScans(sim.config.scan_every)  # each robot's newest scan
         self._last_snap: TickSnapshot | None = None
-        self._rtf = RtfMeter()
-        self._pacer = Pacer(sim.config.dt, rtf)
-        self._lag = LagWatch()
-        self._cost = TickCost()
-        self._cpu = cpu_clock  # the whole process's CPU time: the cost of a tick, publishing included
-        self._cpu_mark: float | None = None  # at the end of the last tick while time runs on
+        self._time = Timekeeper(sim.config.dt, rtf, cpu_clock)  # cpu_clock: the process's, publishing included
+        self._pacer = self._time.pacer
+        self._board = StatusBoard()
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
-        self._models: tuple[int | None, list[str]] = (None, [])  # (table generation, its models)
-        self._observed_rows = RowsMemo(RobotTable.rows_of)  # by name or namespace, as observe names them
-        self._commanded_rows = RowsMemo(_command_rows)
         self._saver = saver  # --state: the fleet written as it runs
         self._next_save = math.inf
+        self._navigation = NavigationRequests(sim, navigator, self._event, self._changed)
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
             SpawnRequest: self._spawn,
             DeleteRequest: self._delete,
-            ListRequest: self._list,
-            WorldRequest: self._world,
-            ClockRequest: self._clock,
+            ListRequest: lambda req, reply: RobotList(self.sim.time, self.sim.states()),
+            WorldRequest: lambda req, reply: self.sim.world,
+            ClockRequest: lambda req, reply: self.clock(),
             PauseRequest: self._pause,
             ResumeRequest: self._resume,
             ResetRequest: self._reset,
             StepRequest: self._step,
-            NavigateRequest: self._navigate,
-            CancelRequest: self._cancel_goal,
-            NavigationStateRequest: self._navigation_state,
+            NavigateRequest: self._navigation.navigate,
+            CancelRequest: self._navigation.cancel,
+            NavigationStateRequest: self._navigation.state,
             PlaceRequest: self._place,
         }
+        self._known = self._status()
 
     def attach(self, adapter: Adapter) -> None:
         """Add an adapter; it hears of every robot already in the world (restored from a
@@ -226,6 +156,15 @@ class Engine:
         except queue.Full:
             raise FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry") from None
 
+    def wake(self) -> None:
+        """An adapter has room for a tick again (any thread): the loop goes on if it waits."""
+        if self._waiting_for_room:
+            self._waiting_for_room = False
+            try:
+                self._inbox.put_nowait(_WAKE)
+            except queue.Full:  # then it wakes for a request anyway
+                pass
+
     def stop(self) -> None:
         self.stop_event.set()
         try:
@@ -238,43 +177,65 @@ class Engine:
     def clock(self, measured_cost: bool = True) -> Clock:
         """The clock now; with ``measured_cost`` False without the tick cost and capacity (a
         step's reply: the same seed and commands give the same bytes)."""
-        sim = self.sim
-        running = not self.paused
-        measured = self._rtf.measure() if running else None
-        return Clock(
-            clock=Time.from_seconds(sim.time),
-            tick=sim.tick,
-            dt=sim.config.dt,
-            paused=self.paused,
-            lockstep=self.lockstep,
-            # until the first tick after a resume there is nothing to measure: the target
-            real_time_factor=0.0 if self.paused else (self.rtf if measured is None else measured),
-            target_real_time_factor=self.rtf,
-            robots=len(sim),
-            dropped_commands=sum(a.dropped_commands() for a in self.adapters),
-            behind_s=self._pacer.behind_s(self._wall()) if running else 0.0,
-            falling_behind=running and self._lag.behind,
-            tick_s=self._cost.mean_s if measured_cost else 0.0,
-            capacity_robots=self.capacity() if measured_cost else 0,
-        )
+        return self._status(measured_cost).clock(self._wall(), self._dropped())
 
     def capacity(self) -> int:
         """About how many robots like these this machine keeps in real time (0: not known yet).
         Real time, whatever the target: the number a user sizes a fleet by."""
-        return self._cost.capacity(self.sim.config.dt)
+        return self._time.capacity()
+
+    def answer_at_once(self, request: Request | NavigationRequest | PlaceRequest) -> Result | FleetError | None:
+        """The answer to a request that needs nothing of the simulation thread, on the caller's
+        thread, or None (then :meth:`submit` it): the clock and the robot list from what the
+        simulation thread last made known (simd/engine/status.py), the world, and the refusal
+        of a spawn while the robot limit is reached. So looking never waits behind a tick, however
+        long ticks take. Every request answered here has no effect to be ordered after; any
+        thread may call it."""
+        status = self._known
+        if isinstance(request, ClockRequest):
+            return status.clock(self._wall(), self._dropped())
+        if isinstance(request, WorldRequest):
+            return self.sim.world
+        if isinstance(request, SpawnRequest) and status.robots >= status.max_robots:
+            try:
+                self.sim.check_spawn_fields(request)  # a bad field is refused first, as the simulation thread would
+            except FleetError as e:
+                return e
+            return limit_refusal(status.max_robots, status.capacity_robots)
+        return None
+
+    def known(self) -> Status:
+        """What the simulation thread last made known (any thread)."""
+        return self._known
+
+    def _dropped(self) -> int:
+        return sum(a.dropped_commands() for a in self.adapters)
+
+    def _status(self, measured_cost: bool = True) -> Status:
+        """The engine now, as other threads may see it (the simulation thread)."""
+        return self._board.status(self.sim, self._time, self.paused, self.lockstep, measured_cost)
+
+    def _make_known(self) -> None:
+        """Publish the engine's status for other threads (after every tick and request)."""
+        self._known = self._status()
 
     # -- the loop ---------------------------------------------------------------------------
 
     def run(self) -> None:
         """Serve and tick until :meth:`stop`; then cancel what is left and close the adapters."""
         start = self._wall()
-        self._start_time(start)
+        self._time.start(start, self.sim.time)
+        self._make_known()
         if self._saver is not None:
             self._next_save = start  # at once: a restored or new fleet is on disk from the start
         try:
             while not self.stop_event.is_set():
                 if self._saver is not None and self._wall() >= self._next_save:
                     self._save()
+                due = bool(self._steps) or (not self.paused and self._pacer.due(self._wall()))
+                if due and not self._adapters_ready():
+                    self._serve_while_waiting()  # an adapter is still sending: requests meanwhile
+                    continue
                 if self._steps:
                     self._run_slice()
                     self.serve_pending()
@@ -287,41 +248,30 @@ class Engine:
                 if self.paused:
                     self._gather_commands()  # keep the adapters' buffers drained while time stands still
                     continue
-                if self._pacer.due(self._wall()):
+                if self._pacer.due(self._wall()) and self._adapters_ready():  # else: served above, until ready
                     self.tick()
                     now = self._wall()
-                    self._pacer.ticked(now)
-                    self._lag.judge(now, self._rtf.measure(), self._rtf.span(), self.rtf, self._load)
+                    self._time.ticked(now, lambda: self._time.load(len(self.sim)))
+                    self._make_known()
         finally:
             self._cancel_steps()
             self.serve_pending()
             if self._saver is not None:
                 self._saver.save_now(capture(self.sim, self._goals()))
 
-    def _tick_cost(self, robots: int) -> None:
-        """What the daemon spent since the last tick, all its threads (the outbox encoding and
-        zenoh sending this tick's messages take more than the physics): the tick's cost, while
-        time runs on (the first tick after time stood still would count the idle wait)."""
-        now = self._cpu()
-        if self._cpu_mark is not None:
-            self._cost.record(robots, now - self._cpu_mark)
-        self._cpu_mark = now
+    def _adapters_ready(self) -> bool:
+        """Whether every adapter takes a tick at once (one that may make the loop wait says so
+        with a ``ready()`` method: simd/adapters/fleet/adapter.py)."""
+        return all(getattr(a, "ready", _always)() for a in self.adapters)
 
-    def _start_time(self, now: float) -> None:
-        """Time starts running now (the start, a resume, a reset): the first tick is due a
-        period from now, and the factor is measured from here."""
-        self._pacer.start(now)
-        self._rtf.restart(now, self.sim.time)
-        self._cpu_mark = None
-
-    def _load(self) -> str:
-        """What the warning of a loop falling behind says of its load."""
-        n, cost = len(self.sim), self._cost.mean_s
-        if not n or not cost:
-            return ""
-        said = f"; {n} robots, a tick takes {cost * 1e3:.1f} ms of the {self._pacer.period * 1e3:.1f} ms it may"
-        cap = self.capacity()
-        return said + (f" (about {cap} robots like these keep real time here)" if cap else "")
+    def _serve_while_waiting(self) -> None:
+        """Serve what comes until an adapter has room (it wakes the loop) instead of blocking in it."""
+        self._waiting_for_room = True
+        call = None if self._adapters_ready() else self._next_call(ROOM_POLL_S)  # room came meanwhile: on
+        self._waiting_for_room = False
+        if call is not None:
+            self._serve(call)
+            self.serve_pending()
 
     def _save(self) -> None:
         assert self._saver is not None
@@ -343,7 +293,7 @@ class Engine:
             return None
         if call is None:  # stop() woke us
             self.stop_event.set()
-        return call
+        return call if isinstance(call, _Call) else None  # (None too for a wake-up)
 
     def serve_pending(self) -> None:
         """Serve every request waiting now (the loop does this between ticks and slices)."""
@@ -367,7 +317,7 @@ class Engine:
         sim.command_many(commands)
         self._pending_commands = {}
         if self.ghost_source is not None:
-            ghosts = self.ghost_source.take(self._own_robots(), stepping=bool(self._steps))
+            ghosts = self.ghost_source.take(self._board.own_robots(self.sim), stepping=bool(self._steps))
             if ghosts is not None:
                 sim.set_ghosts(ghosts)
         if self._steps:  # a step's own commands hold for all of its ticks
@@ -378,7 +328,7 @@ class Engine:
         snap = sim.step()
         self._scans.record(snap)
         self._last_snap = snap
-        self._rtf.record(self._wall(), snap.time)
+        self._time.meter.record(self._wall(), snap.time)
         if nav is not None:
             nav.observe(snap)
             said = nav.take_events()
@@ -386,19 +336,14 @@ class Engine:
                 self._event(Navigation(said))
                 if said.results:
                     self._changed()  # a goal ended: no longer one to resume after a restart
+        self._make_known()  # before anyone hears of the tick: a reader of it finds the clock there
         if publish:
             for a in self.adapters:
                 a.on_tick(snap)
             if snap.tick % CLOCK_EVERY == 0:
                 self._announce_clock()
-        self._tick_cost(len(snap.namespaces))
+        self._time.tick_cost(len(snap.namespaces))
         return snap
-
-    def _own_robots(self) -> OwnRobots:
-        t = self.sim.robots
-        if self._models[0] != t.generation:
-            self._models = (t.generation, [r.model.name for r in t.robots])
-        return OwnRobots(self.sim.tick, t.namespaces, self._models[1], t.x, t.y, t.yaw)
 
     def _announce_clock(self) -> None:
         clock = self.clock()
@@ -408,20 +353,21 @@ class Engine:
     # -- requests ---------------------------------------------------------------------------
 
     def _serve(self, call: _Call) -> None:
-        self._gather_commands()  # drained before each request: the clock's dropped count is current
+        if isinstance(call.request, ClockRequest):  # drained first: the dropped count is current
+            self._gather_commands()  # (not before every request: 80 000 commands a second take a while)
         handler = self._handlers.get(type(call.request))
+        result: Result | FleetError | None
         try:
             if handler is None:
                 raise TypeError(f"no handler for {type(call.request).__name__}")
             result = handler(call.request, call.reply)
         except FleetError as e:
             log.info("%s refused: %s", type(call.request).__name__, e)
-            _send(call.reply, e)
-            return
+            result = e
         except Exception as e:  # our bug: the daemon goes on, the client is told
             log.exception("%s failed", type(call.request).__name__)
-            _send(call.reply, FleetError(ErrorCode.INTERNAL, f"internal error: {type(e).__name__}: {e}"))
-            return
+            result = FleetError(ErrorCode.INTERNAL, f"internal error: {type(e).__name__}: {e}")
+        self._make_known()  # before the reply: whoever has it and asks the clock sees its effect
         if result is not None:  # None: the handler replies later (a step)
             _send(call.reply, result)
 
@@ -429,11 +375,9 @@ class Engine:
         try:
             robot = self.sim.spawn(req)
         except FleetError as e:
-            cap = self.capacity()
-            if e.code is not ErrorCode.ROBOT_LIMIT or not cap:
+            if e.code is not ErrorCode.ROBOT_LIMIT:
                 raise
-            said = f"{e.message}; this machine keeps about {cap} robots like these in real time (measured)"
-            raise FleetError(e.code, said, e.field) from None
+            raise limit_refusal(self.sim.config.max_robots, self.capacity()) from None
         state = self.sim.state(robot)
         self._event(Spawned(state, self.sim.time))
         self._changed()
@@ -449,10 +393,10 @@ class Engine:
         last = self.sim.delete(req.name)
         if self.navigator is not None:
             self.navigator.deleted(last.namespace, self.sim.time)
-            self._tell_navigation()
+            self._navigation.tell()
         self._scans.forget(last.namespace)
         self._pending_commands.pop(last.namespace, None)
-        self._event(Deleted(last))
+        self._event(Deleted(last, (self.sim.epoch, self.sim.tick)))
         self._changed()
         log.info("deleted %s", last.name)
         return last
@@ -462,25 +406,16 @@ class Engine:
         self._pending_commands.pop(state.namespace, None)  # a command sent before the move does not outlive it
         if self.navigator is not None:
             self.navigator.placed(state.namespace, self.sim.time)
-            self._tell_navigation()
+            self._navigation.tell()
         self._changed()
         log.info("placed %s at (%.3f, %.3f, %.3f)", state.name, state.x, state.y, state.yaw)
         return state
 
-    def _list(self, req: ListRequest, reply: Reply) -> Result:
-        return RobotList(self.sim.time, self.sim.states())
-
-    def _world(self, req: WorldRequest, reply: Reply) -> Result:
-        return self.sim.world
-
-    def _clock(self, req: ClockRequest, reply: Reply) -> Result:
-        return self.clock()
-
     def _pause(self, req: PauseRequest, reply: Reply) -> Result:
         self._cancel_steps()
         self.paused = True
-        self._cpu_mark = None
-        self._lag.stopped("paused")
+        self._time.idle()
+        self._time.lag.stopped("paused")
         self._announce_clock()
         return self.clock()
 
@@ -493,7 +428,7 @@ class Engine:
         self._cancel_steps()
         if self.paused:  # a resume while running changes nothing (no new grid, no burst)
             self.paused = False
-            self._start_time(self._wall())
+            self._time.start(self._wall(), self.sim.time)
         self._announce_clock()
         return self.clock()
 
@@ -507,11 +442,11 @@ class Engine:
         self._scans.clear()
         if self.navigator is not None:
             self.navigator.reset(self.sim.time)
-            self._tell_navigation()
+            self._navigation.tell()
         self._event(WorldReset(self.sim.epoch))
         self._changed()
-        self._lag.stopped("the simulation was reset")
-        self._start_time(self._wall())
+        self._time.lag.stopped("the simulation was reset")
+        self._time.start(self._wall(), self.sim.time)
         self._announce_clock()
         return self.clock()
 
@@ -521,63 +456,22 @@ class Engine:
                 ErrorCode.NOT_ALLOWED,
                 "step needs a paused simulation or --lockstep (pause it first with sim/pause)",
             )
-        if not 1 <= req.ticks <= MAX_STEP_TICKS:
-            raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
-        t = self.sim.robots
-        names, rows, v, w = self._step_commands(req)
-        watched = self._observed_rows.rows(t, req.observe)
-        if None in watched:
-            ns = req.observe[watched.index(None)]
-            raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
-        job = _StepJob(req, reply, names, v, w, rows_of=t.generation, rows=rows, here=np.ones(len(rows), dtype=bool))
-        job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.generation
-        self._steps.append(job)
+        self._steps.append(self._planner.job(self.sim, req, reply))
         return None
-
-    def _step_commands(
-        self, req: StepRequest
-    ) -> tuple[list[str], npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """A step's commands, checked, as namespaces, their table rows and (v, w) columns."""
-        if req.commands is None:
-            names = list(req.cmd_vel)
-            values = np.array([(tw.linear.x, tw.angular.z) for tw in req.cmd_vel.values()], dtype=np.float64)
-            field = "cmd_vel"
-        else:
-            if req.cmd_vel:
-                raise FleetError(ErrorCode.INVALID_VALUE, "give cmd_vel or commands, not both", "commands")
-            names, raw = req.commands.names, req.commands.twist
-            if len(raw) != 16 * len(names):
-                raise FleetError(
-                    ErrorCode.INVALID_VALUE,
-                    f"commands.twist must hold 2 float64 for each of the {len(names)} names, got {len(raw)} bytes",
-                    "commands",
-                )
-            values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
-            field = "commands"
-        values = values.reshape(len(names), 2)
-        finite = np.isfinite(values).all(axis=1)
-        if not finite.all():
-            ns = names[int(np.argmin(finite))]
-            raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
-        rows = self._commanded_rows.rows(self.sim.robots, names)
-        if None in rows:
-            ns = names[rows.index(None)]
-            raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", field)
-        return names, np.array(rows, dtype=np.int64), values[:, 0].copy(), values[:, 1].copy()
 
     def _run_slice(self) -> None:
         """Run the current step for about SLICE_SECONDS (at least one tick)."""
         job = self._steps[0]
         end = self._wall() + SLICE_SECONDS
         publish = job.request.publish
-        while job.ran < job.request.ticks and not self.stop_event.is_set():
+        while not job.done and not self.stop_event.is_set():
             self.tick(publish)
             job.ran += 1
             if self._wall() >= end:
                 break
-        if job.ran >= job.request.ticks:
+        if job.done:
             self._steps.popleft()
-            self._cpu_mark = None  # between steps the daemon waits for the next
+            self._time.idle()  # between steps the daemon waits for the next
             _send(job.reply, self._step_result(job, cancelled=False))
 
     def _cancel_steps(self) -> None:
@@ -585,73 +479,16 @@ class Engine:
             job = self._steps.popleft()
             _send(job.reply, self._step_result(job, cancelled=True))
 
-    def _step_result(self, job: _StepJob, cancelled: bool) -> StepResult:
-        if job.request.packed:
-            return StepResult(self.clock(measured_cost=False), job.ran, cancelled, packed=self._observe_packed(job))
-        states = {}
-        scans = {}
-        for key in job.request.observe:
-            robot = self.sim.find(key)
-            if robot is None:  # deleted during the step
-                continue
-            states[key] = self.sim.state(robot)
-            scan = self._scans.get(robot.namespace)
-            if scan is not None:
-                scans[key] = ScanRow(*scan)
-        return StepResult(self.clock(measured_cost=False), job.ran, cancelled, states, scans)
+    def _step_result(self, job: StepJob, cancelled: bool) -> StepResult:
+        return step_result(self.sim, job, self.clock(measured_cost=False), cancelled, self._last_snap, self._scans)
 
-    def _observe_packed(self, job: _StepJob) -> ObservedArrays:
-        """The odometry and latest scans of the robots the step observes, as arrays (robots
-        deleted during the step left out)."""
-        t, keys = self.sim.robots, job.request.observe
-        if job.watched_of == t.generation:  # no spawn or delete since the request came
-            names, rows = keys, job.watched
-        else:
-            found = t.rows_of(keys)
-            names = [key for key, row in zip(keys, found, strict=True) if row is not None]
-            rows = np.array([row for row in found if row is not None], dtype=np.int64)
-        return observe_packed(t, self._last_snap, self._scans, names, rows, self.sim.config.lidar.samples)
-
-    # -- navigation -------------------------------------------------------------------------
-
-    def _nav(self, robot: str) -> tuple[Navigator, str]:
-        """The navigator and the robot's namespace, or the error that refuses the request."""
-        if self.navigator is None:
-            raise FleetError(ErrorCode.NOT_ALLOWED, "navigation is off on this daemon (it was started with --no-nav)")
-        found = self.sim.find(robot)
-        if found is None:
-            raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {robot!r}", "robot")
-        return self.navigator, found.namespace
-
-    def _navigate(self, req: NavigateRequest, reply: Reply) -> Result:
-        nav, ns = self._nav(req.robot)
-        robot = self.sim.find(ns)
-        assert robot is not None
-        accepted = nav.goal(ns, robot.model, req, self.sim.time)
-        self._tell_navigation()  # the preempted goal's result goes before this reply
-        self._changed()
-        return accepted
-
-    def _cancel_goal(self, req: CancelRequest, reply: Reply) -> Result:
-        nav, ns = self._nav(req.robot)
-        result = nav.cancel(ns, req.goal_id, self.sim.time)
-        self._tell_navigation()
-        self._changed()
-        return result
-
-    def _navigation_state(self, req: NavigationStateRequest, reply: Reply) -> Result:
-        nav, ns = self._nav(req.robot)
-        return nav.state(ns)
-
-    def _tell_navigation(self) -> None:
-        assert self.navigator is not None
-        said = self.navigator.take_events()
-        if said:
-            self._event(Navigation(said))
-
-    def _event(self, event: Spawned | Deleted | WorldReset | Navigation) -> None:
+    def _event(self, event: Event) -> None:
         for a in self.adapters:
             a.on_event(event)
+
+
+def _always() -> bool:
+    return True
 
 
 def _send(reply: Reply, result: Result | FleetError) -> None:

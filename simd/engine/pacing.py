@@ -25,6 +25,8 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from simd.engine.capacity import TickCost
+
 log = logging.getLogger(__name__)
 
 #: The factor is measured over about this much wall time, from points at least
@@ -108,6 +110,11 @@ class Pacer:
             self._slipped += late
             self.next = now
 
+    @property
+    def slipped_s(self) -> float:
+        """Wall seconds the grid moved since time last started."""
+        return self._slipped
+
     def behind_s(self, now: float) -> float:
         """Sim seconds the clock is behind where the target factor would have it since time
         last started (the lost wall time times the factor; a tick's phase is not lost)."""
@@ -153,3 +160,58 @@ class LagWatch:
         if self._warned:
             log.warning("%s", line)
         self.behind = self._warned = False
+
+
+class Timekeeper:
+    """The loop's time and load in one place: when ticks are due (:class:`Pacer`), the factor
+    achieved (:class:`RtfMeter`), whether it falls behind (:class:`LagWatch`), and what a tick
+    costs (:class:`~simd.engine.capacity.TickCost`, from the whole process's CPU time between
+    two ticks while time runs on)."""
+
+    def __init__(self, dt: float, rtf: float, cpu_clock: Callable[[], float]) -> None:
+        self.dt = dt
+        self.rtf = rtf
+        self.pacer = Pacer(dt, rtf)
+        self.meter = RtfMeter()
+        self.lag = LagWatch()
+        self.cost = TickCost()
+        self._cpu = cpu_clock
+        self._cpu_mark: float | None = None  # at the end of the last tick while time runs on
+
+    def start(self, now: float, sim_time: float) -> None:
+        """Time starts running now (the start, a resume, a reset): the first tick is due a
+        period from now, and the factor is measured from here."""
+        self.pacer.start(now)
+        self.meter.restart(now, sim_time)
+        self._cpu_mark = None
+
+    def idle(self) -> None:
+        """The loop waits (paused, between steps): the next tick's cost counts from the tick."""
+        self._cpu_mark = None
+
+    def tick_cost(self, robots: int) -> None:
+        """What the daemon spent since the last tick, all its threads (the outbox encoding and
+        zenoh sending this tick's messages take more than the physics): the tick's cost, while
+        time runs on (the first tick after time stood still would count the idle wait)."""
+        now = self._cpu()
+        if self._cpu_mark is not None:
+            self.cost.record(robots, now - self._cpu_mark)
+        self._cpu_mark = now
+
+    def ticked(self, now: float, why: Callable[[], str]) -> None:
+        """A paced tick ended at ``now``: the next deadline, and whether the loop falls behind."""
+        self.pacer.ticked(now)
+        self.lag.judge(now, self.meter.measure(), self.meter.span(), self.rtf, why)
+
+    def capacity(self) -> int:
+        """About how many robots like these keep real time here (0: not known yet)."""
+        return self.cost.capacity(self.dt)
+
+    def load(self, robots: int) -> str:
+        """What the warning of a loop falling behind says of its load."""
+        cost = self.cost.mean_s
+        if not robots or not cost:
+            return ""
+        said = f"; {robots} robots, a tick takes {cost * 1e3:.1f} ms of the {self.pacer.period * 1e3:.1f} ms it may"
+        cap = self.capacity()
+        return said + (f" (about {cap} robots like these keep real time here)" if cap else "")

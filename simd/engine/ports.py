@@ -10,7 +10,10 @@ transport or a wire format, so adding an adapter touches no core or engine file.
 Threads: ``on_*`` and ``take_commands`` are called on the simulation thread and must return
 quickly (hand work to a thread of the adapter's own); ``Engine.submit`` may be called from
 any thread, and either raises at once (busy) or calls the :data:`Reply` exactly once, on the
-simulation thread, after every ``on_*`` call that the request caused.
+simulation thread, after every ``on_*`` call that the request caused. ``Engine.answer_at_once``
+answers on the caller's thread what needs no simulation thread (the clock, the world, a spawn
+refused at the robot limit). An adapter whose ``on_tick`` may block (a full queue) may have a
+``ready()`` method: the engine asks it before each tick and serves requests while it says no.
 """
 
 from __future__ import annotations
@@ -51,9 +54,10 @@ class Spawned:
 
 @dataclass(frozen=True)
 class Deleted:
-    """A robot left; ``robot`` is its last state."""
+    """A robot left; ``robot`` is its last state, ``at`` the (epoch, tick) it left at."""
 
     robot: RobotState
+    at: tuple[int, int] = (0, 0)
 
 
 @dataclass(frozen=True)

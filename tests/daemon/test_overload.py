@@ -5,17 +5,25 @@ bounds that hold whatever the machine's speed, or conditions waited for, never t
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 
 import pytest
+import zenoh
 
-from clients import wait_until
+from clients import FleetClient, wait_until
 from protocol import FleetError
 from protocol.control import SpawnRequest
-from tests.conftest import ROOT, Daemon
+from protocol.keys import Keys
+from simd.adapters.fleet.adapter import FleetAdapter
+from simd.core.sim import SimConfig, Simulation
+from simd.core.worldfile import load_world
+from simd.engine import Engine
+from tests.conftest import ROOT, Daemon, free_port
 
 DT = 1 / 30
 
@@ -77,10 +85,151 @@ def test_a_daemon_asked_for_more_than_it_can_do_says_so_once(daemon_factory: Cal
 
 
 def test_a_spawn_beyond_the_robot_limit_says_what_this_machine_can_keep(daemon_factory: Callable[..., Daemon]) -> None:
-    d = daemon_factory("--world", "empty", "--no-noise", "--max-robots", "5")
+    # 25 robots: fewer give no estimate (the fixed costs of having robots at all swamp each one's part)
+    d = daemon_factory("--world", "empty", "--no-noise", "--max-robots", "25")
     c = d.client()
-    c.spawn_many(_grid(5))
-    assert wait_until(lambda: c.clock().capacity_robots > 0, 15.0)  # a few ticks measured
-    with pytest.raises(FleetError, match=r"robot limit \(5\) is reached; this machine keeps about \d+ robots") as e:
-        c.spawn("one_more", 4.0, 4.0)
+    c.spawn_many(_grid(25))
+    assert wait_until(lambda: c.clock().capacity_robots > 25, 15.0)  # a few ticks measured; 25 burgers fit here
+    with pytest.raises(FleetError, match=r"robot limit \(25\) is reached; this machine keeps about \d+ robots") as e:
+        c.spawn("one_more", 4.0, 8.0)
     assert e.value.code.value == "robot_limit"
+
+
+def test_a_few_robots_give_no_capacity_estimate_rather_than_a_wrong_one(daemon_factory: Callable[..., Daemon]) -> None:
+    """With four robots, (tick - empty tick) / robots counted the first robot's fixed costs as
+    every robot's: ./demo said "about 81 robots" on a machine that keeps a thousand."""
+    d = daemon_factory("--world", "empty", "--no-noise")
+    c = d.client()
+    c.spawn_many(_grid(4))
+    tick = c.clock().tick
+    assert wait_until(lambda: c.clock().tick > tick + 60, 15.0)  # two seconds of ticks measured
+    clock = c.clock()
+    assert clock.tick_s > 0.0 and clock.capacity_robots == 0
+
+
+@pytest.mark.slow
+def test_the_control_plane_answers_while_the_daemon_cannot_keep_up(daemon_factory: Callable[..., Daemon]) -> None:
+    """5 000 burgers at four times real time, which this machine cannot keep, every robot's
+    odometry and scans wanted (a subscriber of one robot's topics turns them on for all) and
+    every robot driven at 10 Hz: the clock, the list, the world, a spawn beyond the limit, a
+    pause and a resume are each answered within a second, every time: a guard on the whole path
+    (the code before this test answered within it too at this size; the test below pins what
+    changed: looking never waits for a tick)."""
+    n, cols, gap = 5000, 80, 1.2
+    d = daemon_factory("--world", "empty", "--no-noise", "--max-robots", str(n), "--paused", "--rtf", "4",
+                       "--cmd-timeout", "0")  # fmt: skip
+    c = d.client(timeout=30.0)
+    grid = [SpawnRequest(name=f"r{i}", x=(i % cols) * gap - 47.4, y=(i // cols) * gap - 37.8) for i in range(n)]
+    c.spawn_many(grid)
+    heard = [0]
+    for topic in ("odom", "scan"):
+        c.session.declare_subscriber(f"{d.prefix}/r0/{topic}", lambda s: heard.__setitem__(0, heard[0] + 1))
+    driver = d.client(timeout=30.0)
+    stop = threading.Event()
+
+    def drive() -> None:
+        while not stop.wait(0.1):
+            for i in range(n):
+                driver.drive(f"r{i}", 0.1, 0.3)
+
+    thread = threading.Thread(target=drive, daemon=True)
+    thread.start()
+    try:
+        c.resume()
+        assert wait_until(lambda: c.clock().falling_behind, 30.0)
+        took: dict[str, list[float]] = {}
+        asks: list[tuple[str, Callable[[], object]]] = [
+            ("clock", c.clock),
+            ("robots", c.robots),
+            ("world", c.world),
+            ("pause", c.pause),
+            ("resume", c.resume),
+        ]
+        for _ in range(5):
+            for kind, ask in asks:
+                t0 = time.monotonic()
+                ask()
+                took.setdefault(kind, []).append(time.monotonic() - t0)
+            t0 = time.monotonic()
+            with pytest.raises(FleetError, match="robot limit"):
+                c.spawn("one_more", 48.0, 48.0)
+            took.setdefault("refused spawn", []).append(time.monotonic() - t0)
+            time.sleep(0.3)
+        worst = {kind: max(s) for kind, s in took.items()}
+        assert all(s < 1.0 for s in worst.values()), worst
+        assert heard[0] > 0 and d.alive()
+    finally:
+        stop.set()
+        thread.join(5.0)
+
+
+class _HeavyTicks:
+    """An adapter whose every tick keeps the simulation thread busy for ``seconds``: a tick
+    of a fleet far too large for the machine, without spawning one."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.ticks = 0
+
+    def on_tick(self, snapshot: object) -> None:
+        self.ticks += 1
+        time.sleep(self.seconds)
+
+    def on_event(self, event: object) -> None:
+        pass
+
+    def on_clock(self, clock: object) -> None:
+        pass
+
+    def take_commands(self) -> dict[str, tuple[float, float]]:
+        return {}
+
+    def dropped_commands(self) -> int:
+        return 0
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.slow
+def test_looking_never_waits_for_a_tick_however_long_it_takes() -> None:
+    """Ticks of 2 s each (the simulation thread busy in every one): the clock, the world, the
+    robot list and a spawn refused at the robot limit are answered within 0.5 s every time,
+    from the status the simulation publishes (they used to wait for the tick to end: up to 2 s)."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=2))
+    heavy = _HeavyTicks(2.0)
+    with zenoh.open(conf) as session:
+        engine = Engine(sim)
+        adapter = FleetAdapter(session, Keys(), engine)
+        for request in _grid(2):
+            engine.submit(request, lambda r: None)
+        engine.serve_pending()
+        engine.attach(heavy)
+        thread = threading.Thread(target=engine.run, daemon=True)
+        thread.start()
+        try:
+            with FleetClient(f"tcp/127.0.0.1:{port}", timeout=10.0) as c:
+                assert wait_until(lambda: heavy.ticks >= 1, 10.0)  # the heavy ticks have begun
+                took: dict[str, list[float]] = {}
+                for _ in range(3):
+                    for kind, ask in (("clock", c.clock), ("world", c.world), ("robots", c.robots)):
+                        t0 = time.monotonic()
+                        ask()
+                        took.setdefault(kind, []).append(time.monotonic() - t0)
+                    t0 = time.monotonic()
+                    with pytest.raises(FleetError, match="robot limit"):
+                        c.spawn("one_more", 4.0, 4.0)
+                    took.setdefault("refused spawn", []).append(time.monotonic() - t0)
+                    time.sleep(0.3)
+                assert len(c.robots()) == 2
+            worst = {kind: max(s) for kind, s in took.items()}
+            assert all(s < 0.5 for s in worst.values()), worst
+        finally:
+            engine.stop()
+            thread.join(10.0)
+            adapter.close()

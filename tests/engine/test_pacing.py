@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import math
 
 import pytest
 
@@ -132,9 +133,28 @@ def test_the_tick_cost_gives_the_robots_that_fit_in_real_time() -> None:
     for _ in range(50):
         cost.record(0, 0.001)  # the loop alone: 1 ms
     for _ in range(50):
-        cost.record(100, 0.011)  # 100 robots: 0.1 ms each
+        cost.record(100, 0.011)  # 100 robots: 0.1 ms each (no smaller fleet measured: net of the empty tick)
     assert cost.mean_s == pytest.approx(0.011)
     assert cost.capacity(DT) == int((DT - 0.001) / 0.0001)
+
+
+def test_the_first_robots_fixed_costs_are_not_counted_as_every_robots() -> None:
+    """Having robots at all costs a tick more than each robot does (its messages are put, the
+    navigator runs): 10 ms here, and 0.5 ms per robot. A few robots give no estimate; two
+    counts give the slope, and the capacity of a machine that keeps 44 such robots."""
+    cost = TickCost()
+    for _ in range(50):
+        cost.record(0, 0.001)
+    for n in (1, 4, 10, 19):
+        for _ in range(20):
+            cost.record(n, 0.011 + 0.0005 * n)
+        assert cost.capacity(DT) == 0, n  # too few to tell: (tick - empty) / robots said 10 at 4 robots
+    for _ in range(20):
+        cost.record(40, 0.011 + 0.0005 * 40)
+    assert cost.capacity(DT) == math.floor((DT - 0.011) / 0.0005) == 44
+    for _ in range(20):  # the fleet shrinks to 30: the slope from the largest count at most half of it
+        cost.record(30, 0.011 + 0.0005 * 30)
+    assert cost.capacity(DT) == 44
 
 
 def test_the_clock_a_spawn_that_crosses_it_and_a_refused_spawn_say_the_capacity(
@@ -142,19 +162,19 @@ def test_the_clock_a_spawn_that_crosses_it_and_a_refused_spawn_say_the_capacity(
 ) -> None:
     caplog.set_level(logging.WARNING, logger="simd.engine.engine")
     wall = FakeWall()
-    sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=2))
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=45))
     e = Engine(sim, lockstep=True, clock=wall, cpu_clock=wall)
     r = Recorder()
-    per_tick = [0.001]  # the loop alone: 1 ms
 
-    def costs(snapshot: TickSnapshot) -> None:  # each tick takes (fake) time
-        wall.now += per_tick[0]
+    def costs(snapshot: TickSnapshot) -> None:  # each tick takes (fake) time: 11 ms with robots, 0.5 ms each
+        wall.now += 0.001 if not snapshot.namespaces else 0.011 + 0.0005 * len(snapshot.namespaces)
 
     r.on_tick = costs  # type: ignore[method-assign]
     e.attach(r)
 
-    def spawn(name: str, x: float) -> object:
-        e.submit(control.SpawnRequest(name=name, x=x, y=0.0), r.reply(name))
+    def spawn(k: int) -> object:
+        name = f"r{k}"
+        e.submit(control.SpawnRequest(name=name, x=float(k % 10) * 2 - 9, y=float(k // 10) * 2 - 9), r.reply(name))
         e.serve_pending()
         return dict(r.log)[name]
 
@@ -163,24 +183,24 @@ def test_the_clock_a_spawn_that_crosses_it_and_a_refused_spawn_say_the_capacity(
             e.tick()
 
     run(20)
-    spawn("a", 0.0)
-    per_tick[0] = 0.001 + 0.02  # 20 ms a robot: one fits in a 33 ms tick, two do not
-    run(20)
+    for k in range(20):
+        spawn(k)
+        run(1 if k not in (9, 19) else 20)  # 10 and 20 robots measured
     clock = e.clock()
-    assert clock.tick_s == pytest.approx(0.021) and clock.capacity_robots == 1
+    assert clock.tick_s == pytest.approx(0.021) and clock.capacity_robots == 44
     assert not caplog.records
-    spawn("b", 2.0)  # crosses it: said at once
+    for k in range(20, 45):  # the 45th crosses it: said at once
+        spawn(k)
     assert [m.getMessage() for m in caplog.records] == [
-        "2 robots: more than the about 1 like these this machine keeps in real time (measured); expect the "
+        "45 robots: more than the about 44 like these this machine keeps in real time (measured); expect the "
         "simulation to fall behind"
     ]
-    per_tick[0] = 0.041
     run(20)
-    refused = spawn("c", 4.0)
+    refused = spawn(45)
     assert isinstance(refused, FleetError) and refused.code is ErrorCode.ROBOT_LIMIT
     assert str(refused) == (
-        "robot_limit: the daemon's robot limit (2) is reached; this machine keeps about 1 robots like these in real "
-        "time (measured)"
+        "robot_limit: the daemon's robot limit (45) is reached; this machine keeps about 44 robots like these in "
+        "real time (measured)"
     )
     assert clock.behind_s == 0.0 and not clock.falling_behind  # lockstep is never behind
     stepped = e.clock(measured_cost=False)  # as a step's reply has it: nothing measured in it

@@ -39,6 +39,8 @@ log = logging.getLogger(__name__)
 CMD_VEL_RING = 65536
 #: A Twist is ~100 bytes; anything much larger is not one.
 MAX_TWIST_BYTES = 64 << 10
+#: cmd_vel keys whose namespaces are kept (parsed once); beyond it the table starts again.
+MAX_KEYS_KEPT = 1 << 17
 #: Dropped commands are logged at most this often (with the count since the last line).
 LOG_EVERY_SECONDS = 5.0
 
@@ -62,6 +64,7 @@ class CommandIntake:
         self._logged_at = -math.inf
         self._unlogged = 0
         self._last_reason = ""
+        self._ns_of: dict[str, str | None] = {}  # cmd_vel key -> its namespace (None: not a robot's)
         self._sub = session.declare_subscriber(keys.cmd_vel("*"), zenoh.handlers.RingChannel(CMD_VEL_RING))
 
     def _twist(self, payload: bytes) -> tuple[float, float]:
@@ -81,9 +84,15 @@ class CommandIntake:
         """Move waiting samples into the table (simulation thread)."""
         sub = self._sub
         commands = self._commands
+        ns_of = self._ns_of
         while (sample := sub.try_recv()) is not None:
             key = str(sample.key_expr)
-            ns = self.keys.namespace_of(key)
+            if key in ns_of:  # parsed once per key: 8 000 robots at 10 Hz are 80 000 samples a second
+                ns = ns_of[key]
+            else:
+                if len(ns_of) >= MAX_KEYS_KEPT:
+                    ns_of.clear()
+                ns = ns_of[key] = self.keys.namespace_of(key)
             try:
                 if ns is None or "*" in ns or "$" in ns:
                     raise ValueError(f"{key!r} names no single robot")

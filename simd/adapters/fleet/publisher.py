@@ -18,6 +18,8 @@ from __future__ import annotations
 import logging
 import math
 import threading
+import time
+from collections.abc import Callable
 from typing import Any
 
 import msgspec
@@ -35,6 +37,9 @@ from simd.wire.odom_codec import OdometryEncoder
 from simd.wire.scan_codec import ScanEncoder
 
 log = logging.getLogger(__name__)
+
+#: Wall time a tick may spend declaring per-robot publishers (see ``Publisher._odom_put``).
+DECLARE_BUDGET_S = 0.02
 
 
 def to_json(topic: str, msgpack_payload: bytes) -> bytes:
@@ -66,11 +71,16 @@ class Publisher:
         # looked up once per fleet change instead of once per robot per tick
         self._odom_puts: tuple[list[str], list[Any]] = ([], [])
         self.odom_puts = 0  # per-robot odometry messages put (none while nobody subscribes)
+        self._declared = 0  # publishers declared this tick
+        self._declare_from = 0.0  # when this tick's first declaration started
+        self._odom_undeclared = False  # some robots' odometry is put on its key (not declared yet)
         # what get P/<ns>/odom and P/<ns>/scan answer from, read on zenoh's threads
         self._latest_lock = threading.Lock()
         self._latest_tick: TickSnapshot | None = None
         self._first_odom: dict[str, bytes] = {}  # spawned since the latest tick
-        self._gone: set[str] = set()  # deleted since the latest tick
+        #: deleted robots, at (epoch, tick) of their delete, until a later tick is sent
+        self._removed: dict[str, tuple[int, int]] = {}
+        self._gone: frozenset[str] = frozenset()  # those of them the tick being sent still names
         self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}
         k = keys
         self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
@@ -123,33 +133,67 @@ class Publisher:
         first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
-            self._gone.discard(ns)
-        if self.odom_wanted or self.odom_json_wanted:
-            self._put_odom([ns], [first])
+        if self.odom_wanted or self.odom_json_wanted:  # (not _put_odom: a namespace deleted a moment ago is back)
+            pub = self._odom_pub.get(ns)
+            if pub is None:  # declared now, whatever the tick's budget: the spawn's reply follows this
+                pub = self._odom_pub[ns] = self.session.declare_publisher(
+                    self.keys.odom(ns), encoding="application/msgpack"
+                )
+            pub.put(first)
+            self.odom_puts += 1
+            if self.odom_json_wanted:
+                self._mirror("odom", [ns], [first])
 
-    def _odom_publisher(self, ns: str) -> zenoh.Publisher:
-        """The robot's odometry publisher, declared the first time somebody subscribes to some
-        robot's topics: thousands of publishers declared up front made a daemon behind a router
-        answer ever later (docs/scale-out.md), and nobody may ever subscribe to them."""
+    def _may_declare(self) -> bool:
+        """Whether another per-robot publisher may be declared in this tick's budget."""
+        if self._declared >= 1 and time.perf_counter() - self._declare_from > DECLARE_BUDGET_S:
+            return False
+        if self._declared == 0:
+            self._declare_from = time.perf_counter()
+        self._declared += 1
+        return True
+
+    def _odom_put(self, ns: str) -> Callable[[bytes], object]:
+        """How the robot's odometry is put: through its publisher, declared the first time
+        somebody subscribes to some robot's topics (thousands of publishers declared up front made
+        a daemon behind a router answer ever later, docs/scale-out.md, and nobody may ever
+        subscribe to them). Declaring 8 000 at once held the daemon for seconds, so each tick
+        declares them for at most ``DECLARE_BUDGET_S``; the robots still without one are not put
+        until then (their latest odometry is still answered on request). Never put on a key string
+        instead: zenoh matches such a key against every resource it knows at every put, and with
+        8 000 robots' tokens and a driver's 8 000 publishers that made a tick take seconds
+        (bench.overload)."""
         pub = self._odom_pub.get(ns)
-        if pub is None:
-            pub = self._odom_pub[ns] = self.session.declare_publisher(
-                self.keys.odom(ns), encoding="application/msgpack"
-            )
-        return pub
+        if pub is not None:
+            return pub.put
+        if not self._may_declare():
+            self._odom_undeclared = True
+            return _skip
+        pub = self._odom_pub[ns] = self.session.declare_publisher(self.keys.odom(ns), encoding="application/msgpack")
+        return pub.put
 
-    def _scan_publisher(self, ns: str) -> zenoh.Publisher:
+    def _scan_put(self, ns: str) -> Callable[[bytes], object]:
+        # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a
+        # tick's scans and its odometry each get a full queue, and odometry goes first when a
+        # link is congested (it is what closes a control loop).
         pub = self._scan_pub.get(ns)
-        if pub is None:
-            # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a
-            # tick's scans and its odometry each get a full queue, and odometry goes first when a
-            # link is congested (it is what closes a control loop).
-            pub = self._scan_pub[ns] = self.session.declare_publisher(
-                self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
-            )
-        return pub
+        if pub is not None:
+            return pub.put
+        if not self._may_declare():
+            return _skip
+        pub = self._scan_pub[ns] = self.session.declare_publisher(
+            self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+        )
+        return pub.put
 
-    def remove_robot(self, ns: str) -> None:
+    def remove_robot(self, ns: str, at: tuple[int, int]) -> None:
+        """Undeclare a deleted robot's publishers and token now (any thread: its delete is
+        answered at once), deleted at (epoch, tick) ``at``: ticks up to then, still queued for
+        sending, leave it out. :meth:`forget` follows them, in the tick order."""
+        with self._latest_lock:
+            self._removed[ns] = at
+            self._first_odom.pop(ns, None)
+            self._latest_scan.pop(ns, None)
         for table in (self._odom_pub, self._scan_pub):
             pub = table.pop(ns, None)
             if pub is not None:
@@ -157,22 +201,27 @@ class Publisher:
         tok = self._tokens.pop(ns, None)
         if tok is not None:
             tok.undeclare()
-        with self._latest_lock:
-            self._first_odom.pop(ns, None)
-            self._latest_scan.pop(ns, None)
-            self._gone.add(ns)
+        self._odom_puts = ([], [])
+
+    def forget(self, ns: str) -> None:
+        """A deleted robot's encoder caches, after the ticks queued before its delete."""
         self._odom.forget(ns)
         self._scans.forget(ns)
-        self._odom_puts = ([], [])
 
     # -- ticks ----------------------------------------------------------------------------------
 
     def publish_tick(self, snap: TickSnapshot) -> None:
         """Every robot's odometry, the scans due, then the fleet topics, of one tick."""
+        self._declared = 0
         with self._latest_lock:
             self._latest_tick = snap
-            self._first_odom.clear()
-            self._gone.clear()
+            if self._first_odom:  # a robot spawned after this tick ran (its odometry went ahead) keeps its first
+                named = set(snap.namespaces)
+                self._first_odom = {ns: b for ns, b in self._first_odom.items() if ns not in named}
+            if self._removed:  # deleted robots this tick (queued before the delete) still names
+                at = (snap.epoch, snap.tick)
+                self._removed = {ns: when for ns, when in self._removed.items() if at <= when}
+            self._gone = frozenset(self._removed)
             for i, ns in enumerate(snap.scan_namespaces):
                 self._latest_scan[ns] = (snap, i)
         if self.odom_wanted or self.odom_json_wanted:
@@ -182,20 +231,29 @@ class Publisher:
             self._put_odom(snap.namespaces, odom)
         if snap.scan_namespaces and (self.scan_wanted or self.scan_json_wanted):
             scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
-            declare = self._scan_publisher
+            put, gone = self._scan_put, self._gone
             for ns, data in zip(snap.scan_namespaces, scans, strict=True):
-                declare(ns).put(data)
+                if ns not in gone:
+                    try:
+                        put(ns)(data)
+                    except zenoh.ZError:  # deleted meanwhile
+                        pass
             if self.scan_json_wanted:
                 self._mirror("scan", snap.scan_namespaces, scans)
         self._publish_fleet_topics(snap)
 
     def _put_odom(self, namespaces: list[str], odom: list[bytes]) -> None:
         layout, puts = self._odom_puts
-        if namespaces != layout:  # cheap when equal: the simulation hands out the same list
-            puts = [self._odom_publisher(ns).put for ns in namespaces]
+        if namespaces != layout or self._odom_undeclared:  # cheap when equal: the simulation hands out the same list
+            self._odom_undeclared = False
+            gone = self._gone
+            puts = [_skip if ns in gone else self._odom_put(ns) for ns in namespaces]
             self._odom_puts = (list(namespaces), puts)
         for put, data in zip(puts, odom, strict=True):
-            put(data)
+            try:
+                put(data)
+            except zenoh.ZError:  # a robot deleted meanwhile: its publisher is gone
+                pass
         self.odom_puts += len(odom)
         if self.odom_json_wanted:
             self._mirror("odom", namespaces, odom)
@@ -241,7 +299,7 @@ class Publisher:
         """The robot's latest odometry, encoded as its topic carried (or would carry) it."""
         with self._latest_lock:
             first = self._first_odom.get(ns)
-            snap = None if ns in self._gone else self._latest_tick
+            snap = None if ns in self._removed else self._latest_tick
         if first is not None:
             return first
         if snap is None or ns not in snap.namespaces:
@@ -259,7 +317,7 @@ class Publisher:
     def _robots_now(self) -> list[str]:
         with self._latest_lock:
             snap = self._latest_tick
-            now = set(self._first_odom) | ({*snap.namespaces} - self._gone if snap is not None else set())
+            now = set(self._first_odom) | ({*snap.namespaces} - set(self._removed) if snap is not None else set())
         return sorted(now)
 
     def _answer(self, query: zenoh.Query, topic: str) -> None:
@@ -284,3 +342,7 @@ class Publisher:
     def close(self) -> None:
         """Undeclare the fixed entities; the robots' go with the session."""
         undeclare_all(self._entities)
+
+
+def _skip(data: bytes) -> None:
+    """The put of a robot deleted after the tick being sent: nothing."""
