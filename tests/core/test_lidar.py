@@ -127,7 +127,10 @@ def _oracle(
     if len(segments):
         beams = shapely.linestrings(np.stack([start, end], axis=1))
         walls = MultiLineString([[(s[0], s[1]), (s[2], s[3])] for s in segments])
-        dist = shapely.distance(Point(ox, oy), shapely.intersection(beams, walls))
+        # GEOS may leave a floating-point flag raised on a beam parallel to a wall, which numpy
+        # then reports after the call, depending on what ran before in the process: not an error
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dist = shapely.distance(Point(ox, oy), shapely.intersection(beams, walls))
         out = np.where(np.isnan(dist), out, dist)
     if len(circles):
         body = pymunk.Body(body_type=pymunk.Body.STATIC)
