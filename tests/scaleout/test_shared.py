@@ -240,3 +240,21 @@ def test_a_stepped_fleet_repeats_exactly_across_daemons(router: Router, tmp_path
     finally:
         for p in daemons:
             _stop(p)
+
+
+def test_a_name_deleted_is_free_again_at_once(fleet: tuple[str, dict[str, subprocess.Popen[str]]]) -> None:
+    """Delete a robot and spawn one of the same name straight away, on either daemon: the
+    daemon that deleted it knows the name is free before its robot's liveliness token has
+    gone round through the router (it used to refuse: "already exists (on another daemon)")."""
+    endpoint, _ = fleet
+    names = [f"again_{i}" for i in range(6)]
+    assert {owner(n, ["a", "b"]) for n in names} == {"a", "b"}
+    with FleetClient(endpoint, timeout=5.0) as c:
+        for n in names:
+            c.spawn(n, 0.0, float(names.index(n)))
+        for round_ in range(3):
+            for n in names:
+                assert c.delete(n).name == n
+                record = c.spawn(n, float(round_ + 1), float(names.index(n)))
+                assert (record.name, record.daemon) == (n, owner(n, ["a", "b"]))
+        assert sorted(r.name for r in c.robots()) == sorted(names)

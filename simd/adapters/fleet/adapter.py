@@ -262,6 +262,8 @@ class FleetAdapter:
             self._own = self._own | {event.robot.name, event.robot.namespace}
         elif isinstance(event, Deleted):
             self._own = self._own - {event.robot.name, event.robot.namespace}
+            if self.members is not None:
+                self.members.left(event.robot.namespace)
         if isinstance(event, Spawned):
             robot = event.robot
             self._records = {**self._records, robot.namespace: convert.robot_record(robot, self.keys, self.daemon_id)}

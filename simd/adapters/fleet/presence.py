@@ -192,6 +192,15 @@ class Members:
                 self._alive.discard(ns)
             self.version += 1  # readers that cache what is alive look again
 
+    def left(self, namespace: str) -> None:
+        """This daemon deleted its robot ``namespace``: the name is free at once, not only when
+        the undeclared token's removal has come back round through the router (a spawn of the
+        same name right after the delete was refused as existing elsewhere)."""
+        with self._lock:
+            if namespace in self._alive:
+                self._alive.discard(namespace)
+                self.version += 1
+
     def daemons(self) -> list[str]:
         with self._lock:
             return sorted(self._daemons)
