@@ -130,4 +130,6 @@ def describe_clock(c: Clock) -> str:
         line += (
             f"; a tick takes {c.tick_s * 1e3:.1f} ms: about {c.capacity_robots} robots like these keep real time here"
         )
+    elif c.tick_s > 0 and not c.paused:  # measured, but too few robots to tell a robot's own cost
+        line += f"; a tick takes {c.tick_s * 1e3:.1f} ms (how many robots keep real time shows from 20 robots on)"
     return line

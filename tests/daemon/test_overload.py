@@ -105,6 +105,12 @@ def test_a_few_robots_give_no_capacity_estimate_rather_than_a_wrong_one(daemon_f
     assert wait_until(lambda: c.clock().tick > tick + 60, 15.0)  # two seconds of ticks measured
     clock = c.clock()
     assert clock.tick_s > 0.0 and clock.capacity_robots == 0
+    shown = subprocess.run(
+        [sys.executable, "-m", "clients.fleet.cli", "clock", "-e", d.endpoint],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert shown.returncode == 0 and "shows from 20 robots on" in shown.stdout, shown
+    assert "robots like these" not in shown.stdout
 
 
 @pytest.mark.slow
