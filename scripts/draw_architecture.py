@@ -46,15 +46,16 @@ def arrow(ax: plt.Axes, a: tuple[float, float], b: tuple[float, float], label: s
 
 def layers(ax: plt.Axes) -> None:
     ax.set_title("Layers (enforced by lint-imports in ./test): each imports only what is below it", fontsize=11)
-    box(ax, 0.2, 7.6, 9.6, 1.0, "entry points   simd.cli · simd.container_entry · simd.healthcheck",
-        "parse flags, open the zenoh session, wire an engine to its adapters, handle signals", LAYER)
+    box(ax, 0.2, 7.6, 9.6, 1.0, "entry points   simd.cli · simd.daemon · simd.container_entry · simd.healthcheck",
+        "check the flags (cli), open the sessions and wire an engine to its adapters, torn down in one place (daemon)",
+        LAYER)
     box(ax, 0.2, 5.9, 9.6, 1.4, "simd.adapters   (independent of each other)",
         "fleet/  the fleet protocol over zenoh: requests decoded at the edge, cmd_vel intake,\n"
         "        publisher (per-robot topics, fleet topics, clock, JSON mirrors, latest-message gets)\n"
         "ros2/   ROS 2 over rmw_zenoh: topics, /tf, liveliness graph, Gazebo's and the standard services", ADAPTER)
-    box(ax, 0.2, 3.7, 4.7, 1.9, "simd.engine", "engine.py  the loop: pacing, lockstep steps in\n"
-        "           slices, typed requests -> handlers\nports.py   the seam: Adapter, events,\n"
-        "           results (no transport, no wire)", LAYER)
+    box(ax, 0.2, 3.7, 4.7, 1.9, "simd.engine", "engine.py  the loop: pacing, typed requests\n"
+        "stepping   lockstep steps in slices · status: answers\n  without the loop · local: requests on the "
+        "caller's thread\nports.py   the seam: Adapter, events, results", LAYER)
     box(ax, 5.1, 3.7, 4.7, 1.9, "simd.wire", "convert     core values -> protocol messages\nodom_codec  "
         "byte templates (+ _odompack.c)\nscan_codec  byte templates\nfleet_codec one message a tick",
         WIRE)
@@ -62,9 +63,10 @@ def layers(ax: plt.Axes) -> None:
         "sim.py       Simulation: spawn rules, commands, the tick, reset\nrobots.py    the robot table: "
         "one row a robot, columns declared once\nsnapshot.py  TickSnapshot (immutable), RobotState\n"
         "physics.py (pymunk) · drive.py (+ _drive.c) · lidar (+ _raycast.c) · sensor_model.py (+ _scannoise.c)\n"
-        "models.py · worldfile.py · native.py (the one registry of compiled kernels)", CORE)
-    box(ax, 0.2, -0.5, 4.7, 1.2, "protocol/  (below everything)", "msgspec messages, requests, keys,\nnames, "
-        "errors, codec, zenoh flags", CLIENT)
+        "models.py · worldfile.py · native.py (the core's compiled kernels; the layers above register theirs)\n\n"
+        "simd.nav (above the core, below the engine): navigator, costmap, cells, traffic, floor, follow", CORE)
+    box(ax, 0.2, -0.5, 4.7, 1.2, "protocol/ · fleetcommon/  (below everything)", "protocol: the wire (messages, "
+        "keys, errors, codec)\nfleetcommon: zenoh flags, map files, array types", CLIENT)
     box(ax, 5.1, -0.5, 4.7, 1.2, "clients/  (protocol only, never simd)", "FleetClient, fleet CLI, teleop, viewer,\n"
         "fleet-record, fleet-map: separate processes", CLIENT)
     ax.set_xlim(0, 10)
