@@ -13,11 +13,9 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from learn.reach import Reachable, reachable
-from protocol.control import SpawnRequest
-from protocol.errors import FleetError
 from simd.core.models import RobotModel
-from simd.core.sim import Simulation
 from simd.core.worldfile import WorldGeometry
+from simd.engine.local import LocalFleet
 
 F32 = npt.NDArray[np.float32]
 
@@ -148,7 +146,7 @@ class KeepClear:
 
 
 def free_pose(
-    sim: Simulation, model: RobotModel, rng: np.random.Generator,
+    places: LocalFleet, model: RobotModel, rng: np.random.Generator,
     keep_clear: KeepClear | Iterable[tuple[float, float]] = (), region: Reachable | None = None, tries: int = 10_000,
 ) -> tuple[float, float, float]:  # fmt: skip
     """A pose where the footprint is clear with 15 cm to spare each way, inside the bounds, in
@@ -157,7 +155,7 @@ def free_pose(
     :class:`KeepClear` that the caller adds to as it places, or any points)."""
     if not isinstance(keep_clear, KeepClear):
         keep_clear = KeepClear(keep_clear)
-    x0, x1, y0, y1 = sim.world.bounds
+    x0, x1, y0, y1 = places.geometry.bounds
     pad = 0.3
     for _ in range(tries):
         x, y = float(rng.uniform(x0 + pad, x1 - pad)), float(rng.uniform(y0 + pad, y1 - pad))
@@ -166,14 +164,12 @@ def free_pose(
             continue
         if keep_clear.near(x, y):
             continue
-        try:
-            sim.validate_spawn(SpawnRequest(name="probe", model=model.name, x=x, y=y, yaw=yaw))
-        except FleetError:
+        if not places.fits(model.name, x, y, yaw):
             continue
-        if all(sim.physics.blocker(model, x + dx, y + dy, yaw) is None
-               for dx, dy in ((0.15, 0), (-0.15, 0), (0, 0.15), (0, -0.15))):  # fmt: skip
+        if not any(places.touches(model, x + dx, y + dy, yaw)
+                   for dx, dy in ((0.15, 0), (-0.15, 0), (0, 0.15), (0, -0.15))):  # fmt: skip
             return x, y, yaw
-    raise RuntimeError(f"no free place in {sim.world.name!r} after {tries} draws")
+    raise RuntimeError(f"no free place in {places.geometry.name!r} after {tries} draws")
 
 
 def collided(scan: F32, footprint: npt.NDArray[np.float64]) -> bool:
@@ -223,16 +219,10 @@ def observe_many(
     return obs
 
 
-def state_of(sim: Simulation, name: str) -> tuple[tuple[float, float, float], tuple[float, float]]:
-    """A robot's pose and (linear, angular) velocity in an in-process simulation."""
-    s = sim.state(sim.find(name))  # type: ignore[arg-type]
-    return (s.x, s.y, s.yaw), (s.linear_velocity, s.angular_velocity)
-
-
-def drivable(sim: Simulation, model: RobotModel) -> Reachable:
+def drivable(world: WorldGeometry, model: RobotModel) -> Reachable:
     """Where a robot of this model can drive from the world's spawn (learn/reach.py)."""
     radius = float(np.max(np.hypot(model.outline[:, 0], model.outline[:, 1])))
-    return reachable(sim.world, radius)
+    return reachable(world, radius)
 
 
 def footprint_ranges(model: RobotModel, samples: int) -> npt.NDArray[np.float64]:

@@ -224,6 +224,15 @@ class Engine:
         except queue.Full:
             raise FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry") from None
 
+    def serve_here(self, request: Request | NavigationRequest | PlaceRequest) -> Result | FleetError:
+        """Serve one request on the calling thread, a step to its last tick, and return its
+        answer: for an engine no thread runs (a local fleet, simd/engine/local.py)."""
+        answers: list[Result | FleetError] = []
+        self._serve(_Call(request, answers.append))
+        while self._steps:
+            self._run_slice()
+        return answers[0]
+
     def stop(self) -> None:
         self.stop_event.set()
         try:
