@@ -105,6 +105,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self.publish = publish
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
+        self._live = np.zeros(0, dtype=np.int64)  # the agents' rows, in their order
+        self._agent_set: set[str] = set()
         found = spaces_for(self.model, beams, self.places.geometry, discrete)
         self._obs_space: spaces.Space[Any] = found.observation
         self._act_space = found.action
@@ -163,9 +165,10 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
                 "left two robots touching; ask for fewer robots or a larger world"
             )
         self.agents = list(self.possible_agents)
+        self._live = live = np.arange(len(self.agents))
+        self._agent_set = set(self.agents)
         self._command[:] = 0.0
         self.steps = 0
-        live = np.arange(len(self.agents))
         obs, distance = self._look(live)
         self._distance[live] = distance
         infos = self._infos(live, distance)
@@ -186,7 +189,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             taken.add(gx, gy)
         self._goal_tuples = [(float(x), float(y)) for x, y in self._goal.tolist()]
         self._command[:] = 0.0
-        self._scans = self._advance(np.arange(len(self.possible_agents)))
+        self._scans = self._advance(np.arange(len(self.possible_agents)), self.possible_agents)[2]
         return not bool(np.any(collided_many(self._scans, self._footprint)))
 
     def _free_pose(self, taken: KeepClear) -> tuple[float, float, float]:
@@ -202,8 +205,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
     def step(self, actions: dict[str, Any]) -> tuple[
         dict[str, F32], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]
     ]:  # fmt: skip
-        if not actions.keys() <= set(self.agents):
-            unknown = sorted(set(actions) - set(self.agents))
+        if not actions.keys() <= self._agent_set:
+            unknown = sorted(set(actions) - self._agent_set)
             raise ValueError(f"actions for agents not in the episode: {unknown} (live: {self.agents})")
         if not self.agents:  # everybody has left: nothing moves, nothing to report (PettingZoo's convention)
             return {}, {}, {}, {}, {}
@@ -215,25 +218,24 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             raise ValueError(
                 f"{names[int(where.split()[-1])]}: {why}" if where.startswith("action ") else str(e)
             ) from None
-        if names:
+        if names == self.agents:  # the usual: every agent acts, in the agents' order
+            self._command[self._live] = commands
+        elif names:
             self._command[[self._index[a] for a in names]] = commands
-        agents = self.agents
-        live = np.array([self._index[a] for a in agents], dtype=np.int64)
-        scans = self._advance(live)
+        agents, live = self.agents, self._live
+        pose, velocity, scans = self._advance(live, agents)
         self.steps += 1
-        pose, goal = self._pose[live], self._goal[live]
+        goal = self._goal[live]
         distance = np.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
         arrived = distance < GOAL_RADIUS
-        goals = self._goal_tuples
-        infos = [
-            {"pose": (p[0], p[1], p[2]), "goal": goals[i], "distance": x, "arrived": a}
-            for p, i, x, a in zip(pose.tolist(), live.tolist(), distance.tolist(), arrived.tolist(), strict=True)
-        ]
-        obs = observe_many(pose, self._velocity[live], goal, scans, self.beams, self._range_max, self._low,
-                           self._high)  # fmt: skip
         crashed = collided_many(scans, self._footprint)
-        for info, c in zip(infos, crashed.tolist(), strict=True):
-            info["collided"] = c
+        goals = self._goal_tuples
+        together = zip(pose.tolist(), live.tolist(), distance.tolist(), arrived.tolist(), crashed.tolist(), strict=True)
+        infos = [
+            {"pose": (p[0], p[1], p[2]), "goal": goals[i], "distance": x, "arrived": a, "collided": c}
+            for p, i, x, a, c in together
+        ]
+        obs = observe_many(pose, velocity, goal, scans, self.beams, self._range_max, self._low, self._high)
         reward = PROGRESS_REWARD * (self._distance[live] - distance)
         reward += np.where(arrived, ARRIVAL_REWARD, np.where(crashed, COLLISION_REWARD, 0.0))
         self._distance[live] = distance
@@ -252,6 +254,8 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             self.fleet.delete_many(leaving)
             gone = set(leaving)
             self.agents = [a for a in agents if a not in gone]
+            self._live = np.array([self._index[a] for a in self.agents], dtype=np.int64)
+            self._agent_set = set(self.agents)
         return result
 
     def render(self) -> Any:
@@ -271,10 +275,12 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         if self.places is not self.fleet:
             self.places.close()
 
-    def _advance(self, live: npt.NDArray[np.int64]) -> F32:
-        """Hold the agents' commands for one lidar period (one step of the fleet); keep their
-        poses and velocities, and return their scans, a row per agent of ``live``."""
-        names = [self.possible_agents[i] for i in live.tolist()]
+    def _advance(
+        self, live: npt.NDArray[np.int64], names: list[str]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], F32]:
+        """Hold the agents' commands (rows ``live``, named ``names``) for one lidar period (one
+        step of the fleet); their poses, velocities and scans after it, a row per agent (the
+        poses and velocities kept too)."""
         reply = self.fleet.step(
             TICKS_A_STEP, commands=(names, self._command[live]), observe=names, packed=True, publish=self.publish
         )
@@ -283,10 +289,10 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         if seen.names != names:
             gone = sorted(set(names) - set(seen.names))
             raise RuntimeError(f"robots of this environment left the world behind its back: {gone}")
-        odom = seen.odom
-        self._pose[live] = odom[:, :3]
-        self._velocity[live] = odom[:, [3, 5]]
-        return seen.ranges
+        pose, velocity = seen.odom[:, :3], seen.odom[:, [3, 5]]
+        self._pose[live] = pose
+        self._velocity[live] = velocity
+        return pose, velocity, seen.ranges
 
     def _look(self, live: npt.NDArray[np.int64]) -> tuple[F32, npt.NDArray[np.float64]]:
         """The live agents' observations after the reset's step, and their distances to their goals."""

@@ -180,8 +180,14 @@ def collided(scan: F32, footprint: npt.NDArray[np.float64]) -> bool:
 def collided_many(scans: F32, footprint: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
     """:func:`collided` for each row of ``scans`` (one robot's scan a row)."""
     # -inf (a return below the minimum range) is below any threshold as it stands
-    hit: npt.NDArray[np.bool_] = np.any(scans < footprint + COLLISION_MARGIN, axis=1)
-    return hit
+    threshold = footprint + COLLISION_MARGIN
+    if scans.dtype == np.float32:  # compared as float32, twice as fast, with the same answers:
+        # for a float32 r, r < t exactly when r < the smallest float32 >= t (none lies between)
+        rounded = threshold.astype(np.float32)
+        up = np.nextafter(rounded, np.float32(np.inf))
+        hit: npt.NDArray[np.bool_] = np.any(scans < np.where(rounded < threshold, up, rounded), axis=1)
+        return hit
+    return np.asarray(np.any(scans < threshold, axis=1))
 
 
 def observe(
