@@ -21,7 +21,7 @@ whichever fleet it drives.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -122,7 +122,11 @@ class LocalFleet:
     def spawn_many(self, robots: Iterable[SpawnRequest]) -> list[RobotState]:
         """Spawn these robots in this order; as FleetClient.spawn_many, every one is tried and
         the first refusal (naming its robot) raised afterwards, the others spawned."""
-        return self._each(list(robots), lambda r: r.name, "SpawnRequest(name=..., x=..., y=...)", SpawnRequest)
+        requests = list(robots)
+        for r in requests:
+            if not isinstance(r, SpawnRequest):
+                raise TypeError(f"spawn_many takes SpawnRequest(name=..., x=..., y=...) items, got {r!r}")
+        return self._each(requests)
 
     def delete(self, name: str) -> RobotState:
         """Delete a robot by name or namespace; its last state."""
@@ -135,24 +139,23 @@ class LocalFleet:
             if not isinstance(n, str):
                 raise TypeError(f"delete_many takes robot names, got {n!r}")
             requests.append(DeleteRequest(name=n))
-        return self._each(requests, lambda r: r.name, "", DeleteRequest)
+        return self._each(requests)
 
     def _robot(self, request: Request) -> RobotState:
         state = self._ask(request)
         assert isinstance(state, RobotState)
         return state
 
-    def _each(self, requests: list[Any], whom: Any, form: str, kind: type[Any]) -> list[RobotState]:
+    def _each(self, requests: Sequence[SpawnRequest | DeleteRequest]) -> list[RobotState]:
+        """Every request served in order; the first refusal raised at the end, naming its robot."""
         out: list[RobotState] = []
         refusal: FleetError | None = None
         for r in requests:
-            if not isinstance(r, kind):
-                raise TypeError(f"spawn_many takes {form} items, got {r!r}")
             try:
                 out.append(self._robot(r))
             except FleetError as e:
                 if refusal is None:
-                    refusal = FleetError(e.code, f"{whom(r)}: {e.message}", e.field)
+                    refusal = FleetError(e.code, f"{r.name}: {e.message}", e.field)
         if refusal is not None:
             raise refusal
         return out
