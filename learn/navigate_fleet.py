@@ -286,9 +286,9 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         )
         assert reply.packed is not None  # asked for
         seen = observed_arrays(reply.packed)
-        if seen.names != names:
+        if seen.names != names:  # one deleted during the step (before it, the step is refused)
             gone = sorted(set(names) - set(seen.names))
-            raise RuntimeError(f"robots of this environment left the world behind its back: {gone}")
+            raise RuntimeError(f"robots of this environment were deleted during the step, by somebody else: {gone}")
         pose, velocity = seen.odom[:, :3], seen.odom[:, [3, 5]]
         self._pose[live] = pose
         self._velocity[live] = velocity

@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 import learn  # noqa: F401  (registers the environments)
 from learn.navigate import NavigateEnv
 from learn.task import GOAL_RADIUS, KeepClear
+from protocol.errors import FleetError
 from tests.conftest import free_port
 
 
@@ -321,3 +322,14 @@ def test_the_keep_clear_cells_answer_as_checking_every_point_does(
     """Places are kept a metre from other robots' starts and goals; the cells that make this
     fast for a thousand robots must find exactly what a check of every point finds."""
     assert KeepClear(points).near(x, y) == any(math.dist((x, y), p) < 1.0 for p in points)
+
+
+def test_a_robot_deleted_behind_the_fleet_envs_back_is_a_clear_error() -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    env = FleetNavigateEnv(robots=2, lidar_noise=False)
+    env.reset(seed=3)
+    env.fleet.delete_many(["tb3_1"])  # somebody else's doing (on a daemon: fleet delete tb3_1)
+    with pytest.raises(FleetError, match="no robot with namespace 'tb3_1'"):  # refused, nothing moved
+        env.step({a: np.zeros(2, np.float32) for a in env.agents})
+    env.close()
