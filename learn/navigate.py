@@ -53,7 +53,7 @@ from learn.task import (
     drivable,
     footprint_ranges,
     free_pose,
-    observe,
+    observe_many,
     spaces_for,
 )
 from protocol.errors import FleetError
@@ -105,6 +105,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self.steps = 0
         self._distance = 0.0
         self._scan = np.zeros(spec.samples, dtype=np.float32)
+        self._odom = np.zeros((1, 6))
         self._window: Any = None
         self._in_episode = False  # the robot is in the world
 
@@ -223,6 +224,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         assert reply.packed is not None  # asked for
         seen = observed_arrays(reply.packed)
         self._scan = seen.ranges[0]  # a lidar period always holds one scan
+        self._odom = seen.odom  # (1, 6): the observation's pose and velocities, as arrays
         x, y, yaw, vx, _, wz = seen.odom[0].tolist()
         self._state = ((x, y, yaw), (vx, wz))
 
@@ -240,9 +242,12 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         return collided(self._scan, self._footprint)
 
     def _observation(self) -> F32:
-        pose, velocity = self._state
-        return observe(pose, velocity, self.goal, self._scan, self.beams, self.range_max, self._low,
-                       self._high)  # fmt: skip
+        # the step's arrays as they came (x, y, yaw; linear x, angular z), the values of _state
+        odom = self._odom
+        one = observe_many(odom[:, :3], odom[:, 3::2], np.array([self.goal]), self._scan[None, :], self.beams,
+                           self.range_max, self._low, self._high)  # fmt: skip
+        row: F32 = one[0]
+        return row
 
     def _info(self) -> dict[str, Any]:
         x, y, yaw = self._pose()

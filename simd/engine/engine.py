@@ -102,6 +102,9 @@ class _StepJob:
     #: table's namespaces list is ``watched_of``)
     watched: npt.NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     watched_of: list[str] | None = None
+    #: ``rows`` as a slice when they are consecutive (most steps: a slice writes the three
+    #: command columns several times faster than an index array, at every tick); None: not found yet
+    span: slice | npt.NDArray[np.int64] | None = None
 
     def apply(self, sim: Simulation, nav: Navigator | None = None) -> None:
         """Command this step's robots for the coming tick (those of them that navigate: only
@@ -112,13 +115,25 @@ class _StepJob:
             self.here = np.array([i is not None for i in found], dtype=bool)
             self.rows = np.array([i for i in found if i is not None], dtype=np.int64)
             self.rows_of = t.namespaces
+            self.span = None
+        if self.span is None:
+            self.span = _span(self.rows)
         if len(self.rows):
             all_here = len(self.rows) == len(self.names)
             v, w = (self.v, self.w) if all_here else (self.v[self.here], self.w[self.here])
-            sim.command_rows(self.rows, v, w)
+            sim.command_rows(self.span, v, w)
             if nav is not None and nav.busy:
                 names = self.names if all_here else [n for n, h in zip(self.names, self.here, strict=True) if h]
                 nav.overridden_by_step(names, v, w, sim.time)
+
+
+def _span(rows: npt.NDArray[np.int64]) -> slice | npt.NDArray[np.int64]:
+    """The same rows as a slice, if they are consecutive and ascending; else as they are."""
+    n = len(rows)
+    if n and (n == 1 or (rows[-1] - rows[0] == n - 1 and bool((np.diff(rows) == 1).all()))):
+        first = int(rows[0])
+        return slice(first, first + n)
+    return rows
 
 
 class RowsMemo:
@@ -159,7 +174,7 @@ class Engine:
         lockstep: bool = False,
         paused: bool = False,
         clock: Callable[[], float] = time.monotonic,
-        cpu_clock: Callable[[], float] = time.process_time,
+        cpu_clock: Callable[[], float] | None = time.process_time,
         saver: Saver | None = None,
         navigator: Navigator | None = None,
     ) -> None:
@@ -181,7 +196,9 @@ class Engine:
         self._pacer = Pacer(sim.config.dt, rtf)
         self._lag = LagWatch()
         self._cost = TickCost()
-        self._cpu = cpu_clock  # the whole process's CPU time: the cost of a tick, publishing included
+        #: the whole process's CPU time: the cost of a tick, publishing included (None: no tick
+        #: costs measured, for an engine in a learner's process that nobody asks its capacity)
+        self._cpu = cpu_clock
         self._cpu_mark: float | None = None  # at the end of the last tick while time runs on
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
@@ -309,6 +326,7 @@ class Engine:
         """What the daemon spent since the last tick, all its threads (the outbox encoding and
         zenoh sending this tick's messages take more than the physics): the tick's cost, while
         time runs on (the first tick after time stood still would count the idle wait)."""
+        assert self._cpu is not None
         now = self._cpu()
         if self._cpu_mark is not None:
             self._cost.record(robots, now - self._cpu_mark)
@@ -368,11 +386,12 @@ class Engine:
         (unless a step asked for no publishing: then no adapter hears of the tick)."""
         sim = self.sim
         nav = self.navigator
-        commands = self._gather_commands()
-        if nav is not None:  # an idle teleop's zeros never stop a robot on its way
-            commands = nav.filter_commands(commands, sim.time)
-        sim.command_many(commands)
-        self._pending_commands = {}
+        commands = self._gather_commands() if self.adapters else self._pending_commands
+        if commands:  # (none without adapters: a local fleet's every tick)
+            if nav is not None:  # an idle teleop's zeros never stop a robot on its way
+                commands = nav.filter_commands(commands, sim.time)
+            sim.command_many(commands)
+            self._pending_commands = {}
         if self.ghost_source is not None:
             ghosts = self.ghost_source.take(self._own_robots(), stepping=bool(self._steps))
             if ghosts is not None:
@@ -385,7 +404,8 @@ class Engine:
         snap = sim.step()
         self._scans.record(snap)
         self._last_snap = snap
-        self._rtf.record(self._wall(), snap.time)
+        if not self.paused:  # stepped time has no factor; a resume measures it anew
+            self._rtf.record(self._wall(), snap.time)
         if nav is not None:
             nav.observe(snap)
             said = nav.take_events()
@@ -398,7 +418,8 @@ class Engine:
                 a.on_tick(snap)
             if snap.tick % CLOCK_EVERY == 0:
                 self._announce_clock()
-        self._tick_cost(len(snap.namespaces))
+        if self._cpu is not None:
+            self._tick_cost(len(snap.namespaces))
         return snap
 
     def _own_robots(self) -> OwnRobots:
@@ -523,6 +544,28 @@ class Engine:
         return self.clock()
 
     def _step(self, req: StepRequest, reply: Reply) -> Result | None:
+        self._steps.append(self._step_job(req, reply))
+        return None
+
+    def step_here(self, req: StepRequest, names: list[str], values: npt.NDArray[np.float64]) -> StepResult:
+        """Run a step on the calling thread to its last tick and return its answer, its
+        commands (``names`` at the (v, w) rows of ``values``, an (n, 2) array) given apart
+        from ``req``, whose own are not read: a local fleet's step (simd/engine/local.py),
+        without the bytes of packed commands, the queue and the reply. The checks, ticks and
+        answer are those of ``req`` with these commands; a refusal raises FleetError."""
+        answers: list[Result | FleetError] = []
+        self._gather_commands()
+        self._steps.append(self._step_job(req, answers.append, (names, values)))
+        while self._steps:
+            self._run_slice()
+        answer = answers[0]
+        assert isinstance(answer, StepResult)
+        return answer
+
+    def _step_job(
+        self, req: StepRequest, reply: Reply, given: tuple[list[str], npt.NDArray[np.float64]] | None = None
+    ) -> _StepJob:
+        """A step request checked (FleetError if refused) and ready to run."""
         if not self.paused:
             raise FleetError(
                 ErrorCode.NOT_ALLOWED,
@@ -531,21 +574,23 @@ class Engine:
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
             raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
         t = self.sim.robots
-        names, rows, v, w = self._step_commands(req)
+        names, rows, v, w = self._step_commands(req, given)
         watched = self._observed_rows.rows(t, req.observe)
         if None in watched:
             ns = req.observe[watched.index(None)]
             raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
-        job = _StepJob(req, reply, names, v, w, rows_of=t.namespaces, rows=rows, here=np.ones(len(rows), dtype=bool))
-        job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.namespaces
-        self._steps.append(job)
-        return None
+        here = np.ones(len(rows), dtype=bool)
+        watched_rows = np.array(watched, dtype=np.int64)
+        return _StepJob(req, reply, names, v, w, 0, t.namespaces, rows, here, watched_rows, t.namespaces)
 
     def _step_commands(
-        self, req: StepRequest
+        self, req: StepRequest, given: tuple[list[str], npt.NDArray[np.float64]] | None = None
     ) -> tuple[list[str], npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
-        """A step's commands, checked, as namespaces, their table rows and (v, w) columns."""
-        if req.commands is None:
+        """A step's commands (``given``, else the request's), checked, as namespaces, their
+        table rows and (v, w) columns."""
+        if given is not None:
+            (names, values), field = given, "commands"
+        elif req.commands is None:
             names = list(req.cmd_vel)
             values = np.array([(tw.linear.x, tw.angular.z) for tw in req.cmd_vel.values()], dtype=np.float64)
             field = "cmd_vel"
@@ -562,8 +607,8 @@ class Engine:
             values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
             field = "commands"
         values = values.reshape(len(names), 2)
-        finite = np.isfinite(values).all(axis=1)
-        if not finite.all():
+        if not np.isfinite(values).all():
+            finite = np.isfinite(values).all(axis=1)
             ns = names[int(np.argmin(finite))]
             raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
         rows = self._commanded_rows.rows(self.sim.robots, names)

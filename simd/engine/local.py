@@ -24,6 +24,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+import msgspec
 import numpy as np
 import numpy.typing as npt
 
@@ -67,7 +68,7 @@ class LocalFleet:
         self._sim = Simulation(geometry, config)
         # no tick costs measured: nobody reads them here, and the process's CPU clock costs
         # a system call a tick (more, while the lidar thread runs)
-        self._engine = Engine(self._sim, lockstep=True, cpu_clock=_no_cpu_clock)
+        self._engine = Engine(self._sim, lockstep=True, cpu_clock=None)
 
     # -- what the world is --------------------------------------------------------------------
 
@@ -196,20 +197,27 @@ class LocalFleet:
         watched = list(observe)
         if watched and not packed:
             raise ValueError("a local fleet gives its observations packed: step(..., packed=True)")
-        cmds = {ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()}
-        arrays = None
-        if commands is not None:
+        if commands is not None and not cmd_vel:  # a learner's every step: the arrays as they are
             names, values = commands
-            twist = np.ascontiguousarray(values, dtype="<f8")
+            twist = np.array(values, dtype=np.float64)
             if twist.shape != (len(names), 2):
                 raise ValueError(f"commands: values must have shape ({len(names)}, 2), got {twist.shape}")
-            arrays = PackedCommands(names=list(names), twist=twist.tobytes())
-        req = StepRequest(ticks=ticks, cmd_vel=cmds, commands=arrays, observe=watched, publish=False, packed=packed)
-        result = self._ask(req)
-        assert isinstance(result, StepResult)
-        fields = {f: getattr(result.clock, f) for f in result.clock.__struct_fields__}
+            req = StepRequest(ticks=ticks, observe=watched, publish=False, packed=packed)
+            result = self._engine.step_here(req, list(names), twist)
+        else:  # cmd_vel (or both, which the engine refuses): the request as a client sends it
+            cmds = {ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()}
+            arrays = None
+            if commands is not None:
+                names, values = commands
+                arrays = PackedCommands(names=list(names), twist=np.asarray(values, dtype="<f8").tobytes())
+            req = StepRequest(ticks=ticks, cmd_vel=cmds, commands=arrays, observe=watched, publish=False, packed=packed)
+            answer = self._ask(req)
+            assert isinstance(answer, StepResult)
+            result = answer
         seen = None if result.packed is None else packed_observations(result.packed)
-        return StepReply(**fields, ticks_run=result.ticks_run, cancelled=result.cancelled, packed=seen)
+        return StepReply(
+            **msgspec.structs.asdict(result.clock), ticks_run=result.ticks_run, cancelled=result.cancelled, packed=seen
+        )
 
     def close(self) -> None:
         self._sim.close()
@@ -221,23 +229,20 @@ class LocalFleet:
         self.close()
 
 
-def _no_cpu_clock() -> float:
-    return 0.0
-
-
 def packed_observations(seen: ObservedArrays) -> PackedObservations:
     """The engine's packed observations as the protocol's message, viewing its arrays (read
     only, as a decoded reply's are)."""
     return PackedObservations(
         names=seen.names,
         samples=seen.ranges.shape[1],
-        odom=_bytes_of(seen.odom, "<f8"),
-        scan_time=_bytes_of(seen.scan_time, "<f8"),
-        ranges=_bytes_of(seen.ranges, "<f4"),
+        odom=_bytes_of(seen.odom, _F8),
+        scan_time=_bytes_of(seen.scan_time, _F8),
+        ranges=_bytes_of(seen.ranges, _F4),
     )
 
 
-def _bytes_of(array: npt.NDArray[Any], dtype: str) -> memoryview:
-    out = np.ascontiguousarray(array, dtype=dtype)
-    out.flags.writeable = False
-    return out.data.cast("B")
+_F8, _F4 = np.dtype("<f8"), np.dtype("<f4")
+
+
+def _bytes_of(array: npt.NDArray[Any], dtype: np.dtype[Any]) -> memoryview:
+    return np.ascontiguousarray(array, dtype=dtype).data.toreadonly().cast("B")
