@@ -63,6 +63,33 @@ def test_a_local_fleet_refuses_as_the_daemon_does() -> None:
         assert len(fleet) == 1 and fleet.clock().paused and fleet.clock().lockstep
 
 
+def test_a_local_fleets_step_with_command_arrays_is_checked_as_a_request_is() -> None:
+    """The envs' every step (commands as arrays, served without the request's bytes) refuses
+    what a step request is refused for, with the same codes, and runs nothing then."""
+    with LocalFleet("turtlebot3_world", lidar_thread=False) as fleet:
+        fleet.spawn("a", -2.0, -0.5)
+        go = (["a"], [(0.1, 0.0)])
+        refused = [
+            ((["a"], [(np.nan, 0.0)]), ["a"], 1, ErrorCode.NON_FINITE, "commands for 'a' is not finite"),
+            ((["zz"], [(0.1, 0.0)]), ["a"], 1, ErrorCode.NOT_FOUND, "no robot with namespace 'zz'"),
+            ((["a", "a"], [(0.1, 0.0), (0.1, 0.0)]), ["a"], 1, ErrorCode.INVALID_VALUE, "'a' more than once"),
+            (go, ["a"], 0, ErrorCode.INVALID_VALUE, "ticks must be in 1.."),
+            (go, ["zz"], 1, ErrorCode.NOT_FOUND, "no robot called 'zz' to observe"),
+        ]
+        for commands, observe, ticks, code, said in refused:
+            with pytest.raises(FleetError, match=said) as e:
+                fleet.step(ticks, commands=commands, observe=observe, packed=True)
+            assert e.value.code is code
+        with pytest.raises(ValueError, match=r"shape \(1, 2\)"):
+            fleet.step(1, commands=(["a"], [(0.1, 0.0, 0.0)]), observe=["a"], packed=True)
+        with pytest.raises(FleetError, match="not both"):
+            fleet.step(1, cmd_vel={"a": (0.1, 0.0)}, commands=go)
+        assert fleet.clock().tick == 0  # nothing ran
+        reply = fleet.step(2, commands=go, observe=["a"], packed=True)
+        assert reply.ticks_run == 2 and reply.tick == 2
+        assert observed_arrays(reply.packed).odom[0, 3] > 0.0  # type: ignore[arg-type]  # it drives
+
+
 def test_a_local_fleet_says_where_a_robot_fits() -> None:
     with LocalFleet("turtlebot3_world", lidar_thread=False) as fleet:
         burger = MODELS["burger"]
