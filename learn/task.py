@@ -195,18 +195,6 @@ def collided_many(scans: F32, footprint: npt.NDArray[np.float64]) -> npt.NDArray
     return np.asarray(np.any(scans < threshold, axis=1))
 
 
-def observe(
-    pose: tuple[float, float, float], velocity: tuple[float, float], goal: tuple[float, float], scan: F32,
-    beams: int, range_max: float, low: F32, high: F32,
-) -> F32:  # fmt: skip
-    """One robot's observation (see learn/navigate.py) from its pose, (linear, angular) velocity and scan."""
-    one = observe_many(
-        np.array([pose]), np.array([velocity]), np.array([goal]), scan[None, :], beams, range_max, low, high
-    )
-    row: F32 = one[0]
-    return row
-
-
 def observe_many(
     poses: npt.NDArray[np.float64], velocities: npt.NDArray[np.float64], goals: npt.NDArray[np.float64],
     scans: F32, beams: int, range_max: float, low: F32, high: F32,
