@@ -49,6 +49,7 @@ from protocol.control import (
     WorldInfo,
 )
 from protocol.errors import ErrorCode, FleetError
+from protocol.gather import GATHER, Gather, Gathering, merge_lists, merge_steps
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
 from protocol.navigation import (
@@ -158,35 +159,28 @@ class FleetClient:
         )
 
     def _query_all(
-        self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None, every: bool = False
+        self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None, how: Gather = "any"
     ) -> list[T]:
-        """Every daemon's answer (a fleet shared by several daemons: docs/scale-out.md), once
-        all have answered; the first error when none answered well (``every``: when any
-        refused), as :meth:`_query` raises it."""
+        """The daemons' good replies (a fleet shared by several daemons: docs/scale-out.md),
+        gathered ``how`` protocol/gather.py says; or the refusal that is the answer."""
         deadline = self.timeout if timeout is None else timeout
-        return self._answers(key, self._ask(key, request, deadline), reply_type, deadline, every)
+        return self._answers(key, self._ask(key, request, deadline), reply_type, deadline, how)
 
-    def _answers(self, key: str, replies: Any, reply_type: type[T], deadline: float, every: bool = False) -> list[T]:
-        """The answers among a query's ``replies``, as :meth:`_query_all` gives them."""
-        found: list[T] = []
-        error: FleetError | None = None
+    def _answers(self, key: str, replies: Any, reply_type: type[T], deadline: float, how: Gather = "any") -> list[T]:
+        """The good replies among a query's ``replies``, as :meth:`_query_all` gives them."""
+        gathering: Gathering[T] = Gathering(how)
         for reply in replies:
             if reply.ok is not None:
-                found.append(decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES))
-            elif error is None:
-                error = self._error(key, reply, deadline)
-        if found and (error is None or not every):
-            return found
-        raise error if error is not None else self._unavailable(key)
+                answer: T | FleetError = decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES)
+            else:
+                answer = self._error(key, reply, deadline)
+            if gathering.add(answer):
+                break
+        return gathering.answer(self._unavailable(key))
 
     def _query(self, key: str, request: object | None, reply_type: type[T], timeout: float | None = None) -> T:
-        """The first answer (one daemon, or the one that owns the answer in a shared fleet)."""
-        deadline = self.timeout if timeout is None else timeout
-        for reply in self._ask(key, request, deadline):
-            if reply.ok is not None:
-                return decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES)
-            raise self._error(key, reply, deadline)
-        raise self._unavailable(key)
+        """The first reply (one daemon, or the one that owns the answer in a shared fleet)."""
+        return self._query_all(key, request, reply_type, timeout, "first")[0]
 
     def _error(self, key: str, reply: zenoh.Reply, deadline: float) -> FleetError:
         """The error an error reply carries (a timeout, a structured refusal, or garbage)."""
@@ -376,10 +370,7 @@ class FleetClient:
 
     def robots(self) -> list[RobotRecord]:
         """Every robot of the fleet, whichever daemon runs it (each daemon lists its own)."""
-        lists = self._query_all(self.keys.robots, None, RobotList)
-        if len(lists) == 1:
-            return lists[0].robots
-        return sorted((r for rl in lists for r in rl.robots), key=lambda r: r.name)
+        return merge_lists(self._query_all(self.keys.robots, None, RobotList)).robots
 
     def robot(self, key: str) -> RobotRecord | None:
         """The record of a robot by name or namespace, or None."""
@@ -446,8 +437,7 @@ class FleetClient:
             ticks=ticks, cmd_vel=cmds, commands=arrays, observe=list(observe), publish=publish, packed=packed
         )
         # a daemon that refused did not step: the fleet is not where the caller thinks
-        replies = self._query_all(self.keys.step, req, StepReply, timeout, every=True)
-        return replies[0] if len(replies) == 1 else _merge_steps(replies, req.observe)
+        return merge_steps(self._query_all(self.keys.step, req, StepReply, timeout, GATHER[StepRequest]), req.observe)
 
     # -- motion ---------------------------------------------------------------------------
 
@@ -677,42 +667,6 @@ class FleetClient:
     def latest_scan(self, namespace: str) -> LaserScan | None:
         """The daemon's most recent scan of a robot (None before its first scan)."""
         return self._latest("scan", namespace, LaserScan)
-
-
-def _merge_steps(replies: list[StepReply], observe: list[str]) -> StepReply:
-    """One step reply from every daemon's: the observations of all (packed rows in the order
-    asked), the fewest ticks run, cancelled if any was."""
-    observations = {k: v for r in replies for k, v in r.observations.items()}
-    parts = [r.packed for r in replies if r.packed is not None]
-    packed = None
-    if parts:
-        names = [n for p in parts for n in p.names]
-        samples = parts[0].samples
-        odom = np.concatenate([np.frombuffer(p.odom, "<f8").reshape(-1, 6) for p in parts])
-        scan_time = np.concatenate([np.frombuffer(p.scan_time, "<f8") for p in parts])
-        ranges = np.concatenate([np.frombuffer(p.ranges, "<f4").reshape(-1, samples) for p in parts])
-        where = {n: k for k, n in enumerate(names)}
-        order = [where[n] for n in observe if n in where]
-        packed = PackedObservations(
-            names=[names[k] for k in order],
-            samples=samples,
-            odom=_byte_view(odom[order]),
-            scan_time=_byte_view(scan_time[order]),
-            ranges=_byte_view(ranges[order]),
-        )
-    return msgspec.structs.replace(
-        replies[0],
-        ticks_run=min(r.ticks_run for r in replies),
-        cancelled=any(r.cancelled for r in replies),
-        observations=observations,
-        packed=packed,
-    )
-
-
-def _byte_view(array: npt.NDArray[Any]) -> memoryview:
-    """A read-only, flat byte view of a fresh array: what a decoded reply's fields are."""
-    array.flags.writeable = False
-    return array.data.cast("B")
 
 
 @dataclass(frozen=True)

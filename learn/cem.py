@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-F64 = npt.NDArray[np.float64]
+from fleetcommon.arrays import F64
 
 #: held-out episodes are seeds from here on; a generation's training seeds are drawn below it
 HELD_OUT_SEED = 1_000_000_000

@@ -23,9 +23,11 @@ takes milliseconds instead of a Gazebo restart.
   footprint clear of everything, with room to see; at least a metre apart) from the env's
   generator; ``reset(seed=s)`` reseeds it and the lidar noise, so a seed replays an episode
   exactly. ``reset(options={"start": (x, y, yaw), "goal": (x, y)})`` fixes either.
-- **Remote**: with ``endpoint=`` the same episodes run on a simd in lockstep over Zenoh (one
-  ``sim/step`` a step, the observation in its reply), to be watched in the viewer or ROS tools;
-  ``publish=False`` steps it without publishing any topic, when nobody watches.
+- **Where it runs**: the engine in this process (simd/engine/local.py), asked the fleet
+  protocol's requests: one ``sim/step`` a step, the observation packed in its reply. With
+  ``endpoint=`` the same requests go to a simd in lockstep over Zenoh (learn/fleet.py), to be
+  watched in the viewer or ROS tools: the same episodes; ``publish=False`` steps it without
+  publishing any topic, when nobody watches.
 """
 
 from __future__ import annotations
@@ -37,11 +39,12 @@ import gymnasium
 import numpy as np
 import numpy.typing as npt
 
-from learn.remote import Daemon
+from clients.api import observed_arrays
+from fleetcommon.arrays import F32
+from learn.fleet import open_fleet, remove_own
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
-    F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
     check_settings,
@@ -50,14 +53,10 @@ from learn.task import (
     drivable,
     footprint_ranges,
     free_pose,
-    observe,
+    observe_many,
     spaces_for,
-    state_of,
 )
-from protocol.control import SpawnRequest
 from protocol.errors import FleetError
-from simd.core.mapworld import load_world_or_map
-from simd.core.sim import SimConfig, Simulation
 
 TICKS_A_STEP = 6  # one lidar period at 30 Hz: every step sees a new scan
 MIN_START_GOAL_M = 1.0
@@ -88,14 +87,17 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self.beams = beams
         self.max_steps = max_steps
         self.render_mode = render_mode
-        self.sim = Simulation(load_world_or_map(world), SimConfig(noise=lidar_noise, lidar_thread=False, cmd_timeout=0))
-        spec = self.sim.config.lidar
+        #: the fleet the robot drives in, and the world asked where it fits (the same, in process)
+        self.fleet, self.places = open_fleet(
+            world, {ROBOT}, lidar_noise=lidar_noise, lidar_thread=False, endpoint=endpoint, prefix=prefix
+        )
+        self.publish = publish
+        spec = self.places.lidar
         self.range_max = spec.range_max
         self._footprint = footprint_ranges(self.model, spec.samples)
-        self.region = drivable(self.sim, self.model)  # where starts and goals are drawn
-        self.remote = _Remote(endpoint, prefix, self.sim.world.name, publish) if endpoint is not None else None
+        self.region = drivable(self.places.geometry, self.model)  # where starts and goals are drawn
         self._state: tuple[tuple[float, float, float], tuple[float, float]] = ((0.0, 0.0, 0.0), (0.0, 0.0))
-        found = spaces_for(self.model, beams, self.sim.world, discrete)
+        found = spaces_for(self.model, beams, self.places.geometry, discrete)
         self.observation_space, self.action_space = found.observation, found.action
         self._low, self._high = found.low, found.high
         self._discrete = discrete
@@ -103,6 +105,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         self.steps = 0
         self._distance = 0.0
         self._scan = np.zeros(spec.samples, dtype=np.float32)
+        self._odom = np.zeros((1, 6))
         self._window: Any = None
         self._in_episode = False  # the robot is in the world
 
@@ -112,16 +115,16 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         super().reset(seed=seed)
         rng = self.np_random
         noise_seed = int(rng.integers(2**31))  # the lidar noise follows the env's generator
-        self.sim.reset(noise_seed)
-        if self.sim.find(ROBOT) is not None:
-            self.sim.delete(ROBOT)
-        if self.remote is not None:
-            self.remote.reset(noise_seed)
+        self.fleet.reset(noise_seed)
+        remove_own(self.fleet, {ROBOT})
+        self._in_episode = False
         chosen_start, chosen_goal = _chosen(options)
         if chosen_goal is not None:
             gx, gy = chosen_goal
-            x0, x1, y0, y1 = self.sim.world.bounds
-            if not (x0 <= gx <= x1 and y0 <= gy <= y1) or self.sim.physics.blocker(self.model, gx, gy, 0.0) == -1:
+            x0, x1, y0, y1 = self.places.geometry.bounds
+            if not (x0 <= gx <= x1 and y0 <= gy <= y1) or self.places.touches(
+                self.model, gx, gy, 0.0, static_only=True
+            ):
                 raise ValueError(
                     f"options['goal'] {chosen_goal}: a {self.model.name} could not stand there "
                     f"(outside the world's bounds or in an obstacle)"
@@ -141,7 +144,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
                 break
             self._delete()
         else:
-            raise RuntimeError(f"no free start in {self.sim.world.name!r} after 1000 draws")
+            raise RuntimeError(f"no free start in {self.places.geometry.name!r} after 1000 draws")
         self.steps = 0
         self._distance = self._goal_distance()
         if self.render_mode == "human":
@@ -172,7 +175,7 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         from learn.picture import top_down
 
         here = [(ROBOT, self.model, self._pose())] if self._in_episode else []
-        image = top_down(self.sim.world, here, self.goal, ROBOT, self._scan)
+        image = top_down(self.places.geometry, here, self.goal, ROBOT, self._scan)
         if self.render_mode == "rgb_array":
             return image
         if self.render_mode == "human":
@@ -194,10 +197,9 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         return None
 
     def close(self) -> None:
-        if self.remote is not None:
-            self.remote.daemon.close()
-            self.remote = None
-        self.sim.close()
+        self.fleet.close()
+        if self.places is not self.fleet:
+            self.places.close()
 
     # -- the pieces -------------------------------------------------------------------------
 
@@ -205,37 +207,29 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         return command(action, self.model, self._discrete)
 
     def _spawn(self, start: tuple[float, float, float]) -> None:
-        req = SpawnRequest(name=ROBOT, model=self.model.name, x=start[0], y=start[1], yaw=start[2])
-        if self.remote is not None:
-            self.remote.client.spawn(req.name, req.x, req.y, req.yaw, model=req.model)
-        else:
-            self.sim.spawn(req)
+        self.fleet.spawn(ROBOT, start[0], start[1], start[2], model=self.model.name)
         self._in_episode = True
 
     def _delete(self) -> None:
-        if self.remote is not None:
-            self.remote.client.delete(ROBOT)
-        else:
-            self.sim.delete(ROBOT)
+        self.fleet.delete_many([ROBOT])
         self._in_episode = False
 
     def _advance(self, v: float, w: float) -> None:
         """Hold (v, w) for one lidar period; keep the robot's scan, pose and velocity of it."""
-        if self.remote is not None:
-            self._scan, self._state = self.remote.step(v, w)
-            return
-        robot = self.sim.find(ROBOT)
-        if robot is None:
+        if not self._in_episode:
             raise gymnasium.error.ResetNeeded("call reset() before step()")
-        for _ in range(TICKS_A_STEP):
-            self.sim.command(robot, v, w)
-            snap = self.sim.step()
-            if ROBOT in snap.scan_namespaces:
-                self._scan = np.array(snap.scans[snap.scan_namespaces.index(ROBOT)])
-        self._state = state_of(self.sim, ROBOT)
+        reply = self.fleet.step(
+            TICKS_A_STEP, commands=([ROBOT], [(v, w)]), observe=[ROBOT], packed=True, publish=self.publish
+        )
+        assert reply.packed is not None  # asked for
+        seen = observed_arrays(reply.packed)
+        self._scan = seen.ranges[0]  # a lidar period always holds one scan
+        self._odom = seen.odom  # (1, 6): the observation's pose and velocities, as arrays
+        x, y, yaw, vx, _, wz = seen.odom[0].tolist()
+        self._state = ((x, y, yaw), (vx, wz))
 
     def _free_pose(self, rng: np.random.Generator) -> tuple[float, float, float]:
-        return free_pose(self.sim, self.model, rng, region=self.region)
+        return free_pose(self.places, self.model, rng, region=self.region)
 
     def _pose(self) -> tuple[float, float, float]:
         return self._state[0]
@@ -248,9 +242,12 @@ class NavigateEnv(gymnasium.Env[F32, Any]):
         return collided(self._scan, self._footprint)
 
     def _observation(self) -> F32:
-        pose, velocity = self._state
-        return observe(pose, velocity, self.goal, self._scan, self.beams, self.range_max, self._low,
-                       self._high)  # fmt: skip
+        # the step's arrays as they came (x, y, yaw; linear x, angular z), the values of _state
+        odom = self._odom
+        one = observe_many(odom[:, :3], odom[:, 3::2], np.array([self.goal]), self._scan[None, :], self.beams,
+                           self.range_max, self._low, self._high)  # fmt: skip
+        row: F32 = one[0]
+        return row
 
     def _info(self) -> dict[str, Any]:
         x, y, yaw = self._pose()
@@ -276,24 +273,3 @@ def _chosen(options: dict[str, Any] | None) -> tuple[tuple[float, float, float] 
             raise ValueError(f"options['goal'] is (x, y), got {opts['goal']!r}")
         goal = (g[0], g[1])
     return start, goal
-
-
-class _Remote:
-    """The robot on a running simd (learn/remote.py), stepped with its observation in the reply."""
-
-    def __init__(self, endpoint: str, prefix: str, world: str, publish: bool) -> None:
-        self.daemon = Daemon(endpoint, prefix, world, frozenset({ROBOT}))
-        self.client = self.daemon.client
-        self.publish = publish
-
-    def reset(self, noise_seed: int) -> None:
-        self.daemon.reset(noise_seed)
-
-    def step(self, v: float, w: float) -> tuple[F32, tuple[tuple[float, float, float], tuple[float, float]]]:
-        reply = self.client.step(TICKS_A_STEP, cmd_vel={ROBOT: (v, w)}, observe=[ROBOT], publish=self.publish)
-        seen = reply.observations[ROBOT]
-        assert seen.scan is not None  # a lidar period always holds one scan
-        scan = np.frombuffer(seen.scan.ranges, dtype="<f4").astype(np.float32)
-        p, q, t = seen.odom.pose.pose.position, seen.odom.pose.pose.orientation, seen.odom.twist.twist
-        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-        return scan, ((p.x, p.y, yaw), (t.linear.x, t.angular.z))

@@ -6,9 +6,10 @@ this process. The robots see each other in their scans and can collide with each
 agent leaves the episode (and the world: its robot is removed) when it reaches its goal or
 collides, and all leave at ``max_steps``.
 
-With ``endpoint=`` the same episodes run on a simd in lockstep (learn/remote.py): one
-``sim/step`` a step for every agent, their observations packed as arrays in its reply, and
-``publish=False`` when nobody watches, so that large fleets step fast.
+Every step is one ``sim/step`` request for every agent, their observations packed as arrays in
+its reply, served by the engine in this process (simd/engine/local.py) or, with ``endpoint=``,
+by a simd in lockstep (learn/fleet.py): the same episodes either way, and ``publish=False``
+when nobody watches the daemon, so that large fleets step fast.
 
 The agents' state is kept in arrays, a row per agent, and every step is computed for the whole
 fleet in a few numpy passes: a thousand agents step about as fast as the core moves them.
@@ -31,11 +32,11 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from clients.api import observed_arrays
-from learn.remote import Daemon
+from fleetcommon.arrays import F32
+from learn.fleet import open_fleet, remove_own
 from learn.task import (
     ARRIVAL_REWARD,
     COLLISION_REWARD,
-    F32,
     GOAL_RADIUS,
     PROGRESS_REWARD,
     KeepClear,
@@ -49,9 +50,6 @@ from learn.task import (
     spaces_for,
 )
 from protocol.control import SpawnRequest
-from simd.core.mapworld import load_world_or_map
-from simd.core.sim import SimConfig, Simulation
-from simd.core.snapshot import TickSnapshot
 
 TICKS_A_STEP = 6
 #: the most agents one env takes (a daemon's default robot limit is 5 000)
@@ -64,10 +62,6 @@ PLACE_TRIES = 50
 
 class _NoPlace(Exception):
     """The starts and goals drawn so far leave no place for the next."""
-
-
-#: cast the scans on the core's lidar thread, beside the physics (the same scans, bit for bit)
-LIDAR_THREAD = True
 
 
 class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pettingzoo has no type information
@@ -98,36 +92,34 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         self.discrete = discrete
         self.max_steps = max_steps
         self.render_mode = render_mode
-        config = SimConfig(noise=lidar_noise, lidar_thread=LIDAR_THREAD, cmd_timeout=0)
-        self.sim = Simulation(load_world_or_map(world), config)
         self.possible_agents = [f"tb3_{i}" for i in range(robots)]
+        self._own = frozenset(self.possible_agents)
+        #: the fleet the robots drive in, and the world asked where they fit (the same, in process)
+        self.fleet, self.places = open_fleet(
+            world, self._own, lidar_noise=lidar_noise, lidar_thread=True, endpoint=endpoint, prefix=prefix
+        )
+        self.publish = publish
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
         self.agents: list[str] = []
-        found = spaces_for(self.model, beams, self.sim.world, discrete)
+        self._live = np.zeros(0, dtype=np.int64)  # the agents' rows, in their order
+        self._agent_set: set[str] = set()
+        found = spaces_for(self.model, beams, self.places.geometry, discrete)
         self._obs_space: spaces.Space[Any] = found.observation
         self._act_space = found.action
         self._low, self._high = found.low, found.high
-        samples = self.sim.config.lidar.samples
-        self._footprint = footprint_ranges(self.model, samples)
-        self.region = drivable(self.sim, self.model)  # where starts and goals are drawn
+        self._range_max = self.places.lidar.range_max
+        self._footprint = footprint_ranges(self.model, self.places.lidar.samples)
+        self.region = drivable(self.places.geometry, self.model)  # where starts and goals are drawn
         self._rng = np.random.default_rng()
+        self._scans: F32 = np.zeros((0, self.places.lidar.samples), dtype=np.float32)  # of the last step, live rows
         # a row per possible agent
-        self._scan = np.zeros((robots, samples), dtype=np.float32)
         self._pose = np.zeros((robots, 3))
         self._velocity = np.zeros((robots, 2))
         self._goal = np.zeros((robots, 2))
         self._distance = np.zeros(robots)
         self._command = np.zeros((robots, 2))  # held until an agent's next action
         self._goal_tuples: list[tuple[float, float]] = []
-        self._rows_for: tuple[list[str], list[str]] | None = None  # what _table_rows was found for
-        self._table_rows = np.zeros(0, dtype=np.int64)
-        self._agent_of_row = np.zeros(0, dtype=np.int64)  # the agent of each table row (-1: none)
         self.steps = 0
-        self.publish = publish
-        self.daemon = (
-            Daemon(endpoint, prefix, self.sim.world.name, frozenset(self.possible_agents)) if endpoint else None
-        )
-        self.remote = self.daemon.client if self.daemon is not None else None
 
     @property
     def goals(self) -> dict[str, tuple[float, float]]:
@@ -146,9 +138,7 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         if seed is not None:
             self._rng = np.random.default_rng(seed)
         noise_seed = int(self._rng.integers(2**31))
-        self.sim.reset(noise_seed)
-        if self.daemon is not None:
-            self.daemon.reset(noise_seed)
+        self.fleet.reset(noise_seed)
         self._remove_all()
         dead_ends = 0
         for _ in range(100):
@@ -161,19 +151,20 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
                     self._remove_all()
                     raise RuntimeError(
                         f"no free place for {len(self.possible_agents)} robots and their goals in "
-                        f"{self.sim.world.name!r} (each a metre from the others) in {PLACE_TRIES} tries: "
+                        f"{self.places.geometry.name!r} (each a metre from the others) in {PLACE_TRIES} tries: "
                         "ask for fewer robots or a larger world"
                     ) from None
             self._remove_all()
         else:
             raise RuntimeError(
-                f"no room for {len(self.possible_agents)} robots in {self.sim.world.name!r}: every try "
+                f"no room for {len(self.possible_agents)} robots in {self.places.geometry.name!r}: every try "
                 "left two robots touching; ask for fewer robots or a larger world"
             )
         self.agents = list(self.possible_agents)
+        self._live = live = np.arange(len(self.agents))
+        self._agent_set = set(self.agents)
         self._command[:] = 0.0
         self.steps = 0
-        live = np.arange(len(self.agents))
         obs, distance = self._look(live)
         self._distance[live] = distance
         infos = self._infos(live, distance)
@@ -185,41 +176,33 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         starts = []
         for a in self.possible_agents:
             x, y, yaw = self._free_pose(taken)
-            start = SpawnRequest(name=a, model=self.model.name, x=x, y=y, yaw=yaw)
-            if self.remote is not None:  # the local core only checks places (starts are a metre apart)
-                starts.append(start)
-            else:
-                self.sim.spawn(start)
+            starts.append(SpawnRequest(name=a, model=self.model.name, x=x, y=y, yaw=yaw))
             taken.add(x, y)
-        if self.remote is not None:  # in this order, as the in-process world spawns them
-            self.remote.spawn_many(starts)
+        self.fleet.spawn_many(starts)  # in this order: the fleet's rows, and with them the scan phases
         for i in range(len(self.possible_agents)):
             gx, gy, _ = self._free_pose(taken)
             self._goal[i] = (gx, gy)
             taken.add(gx, gy)
         self._goal_tuples = [(float(x), float(y)) for x, y in self._goal.tolist()]
         self._command[:] = 0.0
-        everyone = np.arange(len(self.possible_agents))
-        self._take_scans(self._advance(everyone))
-        return not bool(np.any(collided_many(self._scan, self._footprint)))
+        self._scans = self._advance(np.arange(len(self.possible_agents)), self.possible_agents)[2]
+        return not bool(np.any(collided_many(self._scans, self._footprint)))
 
     def _free_pose(self, taken: KeepClear) -> tuple[float, float, float]:
         try:
-            return free_pose(self.sim, self.model, self._rng, taken, self.region, tries=DRAWS_A_PLACE)
+            return free_pose(self.places, self.model, self._rng, taken, self.region, tries=DRAWS_A_PLACE)
         except RuntimeError:
             raise _NoPlace from None
 
     def _remove_all(self) -> None:
-        """Every robot of this env out of the world (here, and on the daemon)."""
-        self.sim.delete_many([r.name for r in self.sim.robots.robots])
-        if self.daemon is not None:
-            self.daemon.remove_own()
+        """Every robot of this env out of the world."""
+        remove_own(self.fleet, self._own)
 
     def step(self, actions: dict[str, Any]) -> tuple[
         dict[str, F32], dict[str, float], dict[str, bool], dict[str, bool], dict[str, dict[str, Any]]
     ]:  # fmt: skip
-        if not actions.keys() <= set(self.agents):
-            unknown = sorted(set(actions) - set(self.agents))
+        if not actions.keys() <= self._agent_set:
+            unknown = sorted(set(actions) - self._agent_set)
             raise ValueError(f"actions for agents not in the episode: {unknown} (live: {self.agents})")
         if not self.agents:  # everybody has left: nothing moves, nothing to report (PettingZoo's convention)
             return {}, {}, {}, {}, {}
@@ -231,28 +214,24 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
             raise ValueError(
                 f"{names[int(where.split()[-1])]}: {why}" if where.startswith("action ") else str(e)
             ) from None
-        if names:
+        if names == self.agents:  # the usual: every agent acts, in the agents' order
+            self._command[self._live] = commands
+        elif names:
             self._command[[self._index[a] for a in names]] = commands
-        agents = self.agents
-        live = np.array([self._index[a] for a in agents], dtype=np.int64)
-        snaps = self._advance(live)
+        agents, live = self.agents, self._live
+        pose, velocity, scans = self._advance(live, agents)
         self.steps += 1
-        # first what needs no scan, while the lidar thread casts the step's last scans
-        pose, goal = self._pose[live], self._goal[live]
+        goal = self._goal[live]
         distance = np.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
         arrived = distance < GOAL_RADIUS
-        goals = self._goal_tuples
-        infos = [
-            {"pose": (p[0], p[1], p[2]), "goal": goals[i], "distance": x, "arrived": a}
-            for p, i, x, a in zip(pose.tolist(), live.tolist(), distance.tolist(), arrived.tolist(), strict=True)
-        ]
-        self._take_scans(snaps)
-        scans = self._scan[live]
-        obs = observe_many(pose, self._velocity[live], goal, scans, self.beams,
-                           self.sim.config.lidar.range_max, self._low, self._high)  # fmt: skip
         crashed = collided_many(scans, self._footprint)
-        for info, c in zip(infos, crashed.tolist(), strict=True):
-            info["collided"] = c
+        goals = self._goal_tuples
+        together = zip(pose.tolist(), live.tolist(), distance.tolist(), arrived.tolist(), crashed.tolist(), strict=True)
+        infos = [
+            {"pose": (p[0], p[1], p[2]), "goal": goals[i], "distance": x, "arrived": a, "collided": c}
+            for p, i, x, a, c in together
+        ]
+        obs = observe_many(pose, velocity, goal, scans, self.beams, self._range_max, self._low, self._high)
         reward = PROGRESS_REWARD * (self._distance[live] - distance)
         reward += np.where(arrived, ARRIVAL_REWARD, np.where(crashed, COLLISION_REWARD, 0.0))
         self._distance[live] = distance
@@ -268,12 +247,11 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         )
         leaving = [a for k, a in enumerate(agents) if done_l[k] or late_l[k]]
         if leaving:  # it leaves the episode, and the world
-            if self.remote is not None:
-                self.remote.delete_many(leaving)
-            else:
-                self.sim.delete_many(leaving)
+            self.fleet.delete_many(leaving)
             gone = set(leaving)
             self.agents = [a for a in agents if a not in gone]
+            self._live = np.array([self._index[a] for a in self.agents], dtype=np.int64)
+            self._agent_set = set(self.agents)
         return result
 
     def render(self) -> Any:
@@ -282,63 +260,41 @@ class FleetNavigateEnv(ParallelEnv[str, F32, Any]):  # type: ignore[misc]  # pet
         if self.render_mode != "rgb_array":
             return None
         here = [(a, self.model, tuple(self._pose[self._index[a]].tolist())) for a in self.agents]
-        return top_down(self.sim.world, here, self.goals_of(self.agents))
+        return top_down(self.places.geometry, here, self.goals_of(self.agents))
 
     def goals_of(self, agents: list[str]) -> dict[str, tuple[float, float]]:
         goals = self.goals
         return {a: goals[a] for a in agents}
 
     def close(self) -> None:
-        if self.daemon is not None:
-            self.daemon.close()
-            self.daemon = self.remote = None
-        self.sim.close()
+        self.fleet.close()
+        if self.places is not self.fleet:
+            self.places.close()
 
-    def _advance(self, live: npt.NDArray[np.int64]) -> list[TickSnapshot]:
-        """Hold the agents' commands for one lidar period; keep their poses and velocities, and
-        their scans remotely. In process the ticks' snapshots come back, their scans perhaps
-        still being cast: :meth:`_take_scans` keeps them."""
-        names = [self.possible_agents[i] for i in live.tolist()]
-        if self.remote is not None:
-            reply = self.remote.step(
-                TICKS_A_STEP, commands=(names, self._command[live]), observe=names, packed=True, publish=self.publish
-            )
-            assert reply.packed is not None
-            seen = observed_arrays(reply.packed)
-            rows = [self._index[a] for a in seen.names]
-            self._scan[rows] = seen.ranges
-            self._pose[rows] = seen.odom[:, :3]
-            self._velocity[rows] = seen.odom[:, [3, 5]]
-            return []
-        sim, t = self.sim, self.sim.robots
-        if self._rows_for != (t.namespaces, names):  # the table's rows move only with a spawn or delete
-            self._table_rows = np.array([t.row_of(a) for a in names], dtype=np.int64)
-            self._rows_for = (t.namespaces, names)
-            self._agent_of_row = np.full(len(t), -1, dtype=np.int64)  # for the scans, by table row
-            self._agent_of_row[self._table_rows] = live
-        table_rows = self._table_rows
-        v, w = self._command[live, 0], self._command[live, 1]
-        snaps = []
-        for _ in range(TICKS_A_STEP):
-            sim.command_rows(table_rows, v, w)
-            snaps.append(sim.step())
-        self._pose[live] = np.stack([t.x[table_rows], t.y[table_rows], t.yaw[table_rows]], axis=1)
-        self._velocity[live] = np.stack([t.vx[table_rows], t.wz[table_rows]], axis=1)
-        return snaps
-
-    def _take_scans(self, snaps: list[TickSnapshot]) -> None:
-        """Keep the scans of these ticks (waiting for the lidar thread if it is still casting)."""
-        for snap in snaps:  # the table did not change during the ticks: its rows are the agents'
-            if len(snap.scan_index):
-                agents = self._agent_of_row[snap.scan_index]
-                mine = agents >= 0
-                self._scan[agents[mine]] = snap.scans[mine] if not mine.all() else snap.scans
+    def _advance(
+        self, live: npt.NDArray[np.int64], names: list[str]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], F32]:
+        """Hold the agents' commands (rows ``live``, named ``names``) for one lidar period (one
+        step of the fleet); their poses, velocities and scans after it, a row per agent (the
+        poses and velocities kept too)."""
+        reply = self.fleet.step(
+            TICKS_A_STEP, commands=(names, self._command[live]), observe=names, packed=True, publish=self.publish
+        )
+        assert reply.packed is not None  # asked for
+        seen = observed_arrays(reply.packed)
+        if seen.names != names:  # one deleted during the step (before it, the step is refused)
+            gone = sorted(set(names) - set(seen.names))
+            raise RuntimeError(f"robots of this environment were deleted during the step, by somebody else: {gone}")
+        pose, velocity = seen.odom[:, :3], seen.odom[:, [3, 5]]
+        self._pose[live] = pose
+        self._velocity[live] = velocity
+        return pose, velocity, seen.ranges
 
     def _look(self, live: npt.NDArray[np.int64]) -> tuple[F32, npt.NDArray[np.float64]]:
-        """The live agents' observations, and their distances to their goals."""
+        """The live agents' observations after the reset's step, and their distances to their goals."""
         pose, goal = self._pose[live], self._goal[live]
-        obs = observe_many(pose, self._velocity[live], goal, self._scan[live], self.beams,
-                           self.sim.config.lidar.range_max, self._low, self._high)  # fmt: skip
+        obs = observe_many(pose, self._velocity[live], goal, self._scans, self.beams, self._range_max, self._low,
+                           self._high)  # fmt: skip
         distance = np.hypot(goal[:, 0] - pose[:, 0], goal[:, 1] - pose[:, 1])
         return obs, distance
 

@@ -174,6 +174,8 @@ class RobotRecord(msgspec.Struct, kw_only=True):
     frames: Frames | None = None
     #: the id of the daemon that simulates it (``simd --id``)
     daemon: str = ""
+    #: body-frame sideways velocity (m/s): nonzero only while something pushes it sideways
+    lateral_velocity: float = 0.0
 
 
 #: The id of a daemon started without ``--id``.

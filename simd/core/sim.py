@@ -323,9 +323,10 @@ class Simulation:
             self.command_rows(np.asarray(rows), np.asarray(vs), np.asarray(ws))
         return len(rows)
 
-    def command_rows(self, rows: I64, v: F64, w: F64) -> None:
-        """Command the robots of table ``rows`` at once (rows from ``robots.row_of``, valid
-        while the table's ``generation`` is the same); refreshes their watchdogs."""
+    def command_rows(self, rows: I64 | slice, v: F64, w: F64) -> None:
+        """Command the robots of table ``rows`` at once (rows from ``robots.row_of``, or a
+        slice of them, valid while the table's ``generation`` is the same); refreshes their
+        watchdogs."""
         t = self.robots
         t.target_v[rows] = v
         t.target_w[rows] = w

@@ -40,6 +40,7 @@ from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
 from simd.engine.capacity import limit_refusal
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
+from simd.engine.here import ServedHere
 from simd.engine.navigation_requests import NavigationRequests
 from simd.engine.observe import LatestScans
 from simd.engine.pacing import Timekeeper
@@ -81,7 +82,7 @@ class _Call:
     reply: Reply
 
 
-class Engine:
+class Engine(ServedHere):
     """Runs a :class:`Simulation` for its adapters; see the module docstring."""
 
     def __init__(
@@ -92,7 +93,7 @@ class Engine:
         lockstep: bool = False,
         paused: bool = False,
         clock: Callable[[], float] = time.monotonic,
-        cpu_clock: Callable[[], float] = time.process_time,
+        cpu_clock: Callable[[], float] | None = time.process_time,
         saver: Saver | None = None,
         navigator: Navigator | None = None,
     ) -> None:
@@ -311,11 +312,12 @@ class Engine:
         (unless a step asked for no publishing: then no adapter hears of the tick)."""
         sim = self.sim
         nav = self.navigator
-        commands = self._gather_commands()
-        if nav is not None:  # an idle teleop's zeros never stop a robot on its way
-            commands = nav.filter_commands(commands, sim.time)
-        sim.command_many(commands)
-        self._pending_commands = {}
+        commands = self._gather_commands() if self.adapters else self._pending_commands
+        if commands:  # (none without adapters: a local fleet's every tick)
+            if nav is not None:  # an idle teleop's zeros never stop a robot on its way
+                commands = nav.filter_commands(commands, sim.time)
+            sim.command_many(commands)
+            self._pending_commands = {}
         if self.ghost_source is not None:
             ghosts = self.ghost_source.take(self._board.own_robots(self.sim), stepping=bool(self._steps))
             if ghosts is not None:
@@ -328,7 +330,8 @@ class Engine:
         snap = sim.step()
         self._scans.record(snap)
         self._last_snap = snap
-        self._time.meter.record(self._wall(), snap.time)
+        if not self.paused:  # stepped time has no factor; a resume measures it anew
+            self._time.meter.record(self._wall(), snap.time)
         if nav is not None:
             nav.observe(snap)
             said = nav.take_events()
@@ -351,6 +354,9 @@ class Engine:
             a.on_clock(clock)
 
     # -- requests ---------------------------------------------------------------------------
+
+    def _serve_call(self, request: Request | NavigationRequest | PlaceRequest, reply: Reply) -> None:
+        self._serve(_Call(request, reply))
 
     def _serve(self, call: _Call) -> None:
         if isinstance(call.request, ClockRequest):  # drained first: the dropped count is current
@@ -421,10 +427,7 @@ class Engine:
 
     def _resume(self, req: ResumeRequest, reply: Reply) -> Result:
         if self.lockstep:
-            raise FleetError(
-                ErrorCode.NOT_ALLOWED,
-                "the daemon runs in lockstep: time advances only through sim/step",
-            )
+            raise FleetError(ErrorCode.NOT_ALLOWED, "the daemon runs in lockstep: time advances only through sim/step")
         self._cancel_steps()
         if self.paused:  # a resume while running changes nothing (no new grid, no burst)
             self.paused = False
@@ -451,12 +454,7 @@ class Engine:
         return self.clock()
 
     def _step(self, req: StepRequest, reply: Reply) -> Result | None:
-        if not self.paused:
-            raise FleetError(
-                ErrorCode.NOT_ALLOWED,
-                "step needs a paused simulation or --lockstep (pause it first with sim/pause)",
-            )
-        self._steps.append(self._planner.job(self.sim, req, reply))
+        self._steps.append(self._step_job(req, reply))
         return None
 
     def _run_slice(self) -> None:

@@ -168,7 +168,9 @@ class Timekeeper:
     costs (:class:`~simd.engine.capacity.TickCost`, from the whole process's CPU time between
     two ticks while time runs on)."""
 
-    def __init__(self, dt: float, rtf: float, cpu_clock: Callable[[], float]) -> None:
+    def __init__(self, dt: float, rtf: float, cpu_clock: Callable[[], float] | None) -> None:
+        """``cpu_clock``: the whole process's CPU time (None: no tick costs measured, for an
+        engine in a learner's process that nobody asks its capacity)."""
         self.dt = dt
         self.rtf = rtf
         self.pacer = Pacer(dt, rtf)
@@ -193,6 +195,8 @@ class Timekeeper:
         """What the daemon spent since the last tick, all its threads (the outbox encoding and
         zenoh sending this tick's messages take more than the physics): the tick's cost, while
         time runs on (the first tick after time stood still would count the idle wait)."""
+        if self._cpu is None:
+            return
         now = self._cpu()
         if self._cpu_mark is not None:
             self.cost.record(robots, now - self._cpu_mark)

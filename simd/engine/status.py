@@ -13,17 +13,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import numpy as np
-import numpy.typing as npt
-
+from fleetcommon.arrays import F64
 from protocol.control import Clock
 from protocol.messages import Time
 from simd.core.robots import Robot, RobotTable
 from simd.core.sim import Simulation
 from simd.engine.pacing import Timekeeper
 from simd.engine.ports import OwnRobots
-
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass(frozen=True)

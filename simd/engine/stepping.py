@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
+from fleetcommon.arrays import F64, I64
 from protocol.control import MAX_STEP_TICKS, Clock, StepRequest
 from protocol.errors import ErrorCode, FleetError
 from simd.core.robots import RobotTable
@@ -23,9 +24,6 @@ from simd.core.snapshot import TickSnapshot
 from simd.engine.observe import LatestScans, observe_packed
 from simd.engine.ports import ObservedArrays, Reply, ScanRow, StepResult
 from simd.nav.navigator import Navigator
-
-I64 = npt.NDArray[np.int64]
-F64 = npt.NDArray[np.float64]
 
 
 @dataclass
@@ -47,6 +45,9 @@ class StepJob:
     #: table's generation is ``watched_of``)
     watched: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
     watched_of: int | None = None
+    #: ``rows`` as a slice when they are consecutive (most steps: a slice writes the three
+    #: command columns several times faster than an index array, at every tick); None: not found yet
+    span: slice | I64 | None = None
 
     @property
     def done(self) -> bool:
@@ -61,13 +62,25 @@ class StepJob:
             self.here = np.array([i is not None for i in found], dtype=bool)
             self.rows = np.array([i for i in found if i is not None], dtype=np.int64)
             self.rows_of = t.generation
+            self.span = None
+        if self.span is None:
+            self.span = _span(self.rows)
         if len(self.rows):
             all_here = len(self.rows) == len(self.names)
             v, w = (self.v, self.w) if all_here else (self.v[self.here], self.w[self.here])
-            sim.command_rows(self.rows, v, w)
+            sim.command_rows(self.span, v, w)
             if nav is not None and nav.busy:
                 names = self.names if all_here else [n for n, h in zip(self.names, self.here, strict=True) if h]
                 nav.overridden_by_step(names, v, w, sim.time)
+
+
+def _span(rows: I64) -> slice | I64:
+    """The same rows as a slice, if they are consecutive and ascending; else as they are."""
+    n = len(rows)
+    if n and (n == 1 or (rows[-1] - rows[0] == n - 1 and bool((np.diff(rows) == 1).all()))):
+        first = int(rows[0])
+        return slice(first, first + n)
+    return rows
 
 
 class RowsMemo:
@@ -105,12 +118,16 @@ class StepPlanner:
         self._observed_rows = RowsMemo(RobotTable.rows_of)  # by name or namespace, as observe names them
         self._commanded_rows = RowsMemo(command_rows)
 
-    def job(self, sim: Simulation, req: StepRequest, reply: Reply) -> StepJob:
-        """The job of a step request, or the FleetError that refuses it."""
+    def job(
+        self, sim: Simulation, req: StepRequest, reply: Reply, given: tuple[list[str], F64] | None = None
+    ) -> StepJob:
+        """The job of a step request, or the FleetError that refuses it; its commands are
+        ``given`` (names, an (n, 2) array of (v, w)) instead of the request's when given (a
+        local fleet's step, simd/engine/local.py: no bytes of packed commands)."""
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
             raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
         t = sim.robots
-        names, rows, v, w = self._commands(t, req)
+        names, rows, v, w = self._commands(t, req, given)
         watched = self._observed_rows.rows(t, req.observe)
         if None in watched:
             ns = req.observe[watched.index(None)]
@@ -119,9 +136,14 @@ class StepPlanner:
         job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.generation
         return job
 
-    def _commands(self, table: RobotTable, req: StepRequest) -> tuple[list[str], I64, F64, F64]:
-        """A step's commands, checked, as namespaces, their table rows and (v, w) columns."""
-        if req.commands is None:
+    def _commands(
+        self, table: RobotTable, req: StepRequest, given: tuple[list[str], F64] | None
+    ) -> tuple[list[str], I64, F64, F64]:
+        """A step's commands (``given``, else the request's), checked, as namespaces, their
+        table rows and (v, w) columns."""
+        if given is not None:
+            (names, values), field = given, "commands"
+        elif req.commands is None:
             names = list(req.cmd_vel)
             values = np.array([(tw.linear.x, tw.angular.z) for tw in req.cmd_vel.values()], dtype=np.float64)
             field = "cmd_vel"
@@ -138,8 +160,8 @@ class StepPlanner:
             values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
             field = "commands"
         values = values.reshape(len(names), 2)
-        finite = np.isfinite(values).all(axis=1)
-        if not finite.all():
+        if not np.isfinite(values).all():
+            finite = np.isfinite(values).all(axis=1)
             ns = names[int(np.argmin(finite))]
             raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
         rows = self._commanded_rows.rows(table, names)

@@ -68,6 +68,7 @@ def robot_record(state: RobotState, keys: Keys, daemon: str = "") -> RobotRecord
         topics=Topics(cmd_vel=keys.cmd_vel(ns), odom=keys.odom(ns), scan=keys.scan(ns), alive=keys.alive(ns)),
         frames=frames(ns),
         daemon=daemon,
+        lateral_velocity=state.lateral_velocity,
     )
 
 

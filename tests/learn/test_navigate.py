@@ -16,6 +16,7 @@ from hypothesis import strategies as st
 import learn  # noqa: F401  (registers the environments)
 from learn.navigate import NavigateEnv
 from learn.task import GOAL_RADIUS, KeepClear
+from protocol.errors import FleetError
 from tests.conftest import free_port
 
 
@@ -159,7 +160,7 @@ def test_robots_see_each_other_and_leave_the_world_when_done() -> None:
 
     env = FleetNavigateEnv(robots=4, lidar_noise=False)
     observations, _ = env.reset(seed=11)
-    assert sorted(observations) == ["tb3_0", "tb3_1", "tb3_2", "tb3_3"] and len(env.sim) == 4
+    assert sorted(observations) == ["tb3_0", "tb3_1", "tb3_2", "tb3_3"] and len(env.places) == 4
     steps = 0
     while env.agents and steps < 500:
         # full speed at their goals: they meet, bump or arrive; each leaves when it is done
@@ -167,9 +168,9 @@ def test_robots_see_each_other_and_leave_the_world_when_done() -> None:
         observations, _, terms, truncs, _ = env.step(actions)
         for a in terms:
             if terms[a] or truncs[a]:
-                assert a not in env.agents and env.sim.find(a) is None
+                assert a not in env.agents and a not in {r.name for r in env.places.robots()}
         steps += 1
-    assert not env.agents and len(env.sim) == 0
+    assert not env.agents and len(env.places) == 0
     with pytest.raises(ValueError, match="not in the episode"):
         env.step({"tb3_0": np.zeros(2, np.float32)})
     assert env.step({}) == ({}, {}, {}, {}, {})  # nobody left: nothing to report
@@ -197,7 +198,7 @@ def test_a_remote_daemon_gives_the_same_episode_as_the_core_in_process(daemon_fa
     assert len(here) == len(there) > 1
     for (o1, r1, p1, t1), (o2, r2, p2, t2) in zip(here, there, strict=True):
         assert p1 == p2 and t1 == t2  # the same positions, bit for bit
-        assert np.allclose(o1, o2, atol=1e-5) and r1 == pytest.approx(r2, abs=1e-6)  # yaw went through a quaternion
+        assert np.array_equal(o1, o2) and r1 == r2  # the same requests, served by the same engine
     c = d.client()
     assert [r.name for r in c.robots()] == ["agent"]  # the episode is there to watch
     remote.close()
@@ -213,7 +214,7 @@ def test_a_remote_fleet_gives_the_same_episodes_as_the_core_in_process(daemon_fa
     local = FleetNavigateEnv(robots=3)
     for episode in range(2):  # the second reset clears the first episode's robots off the daemon
         got = [env.reset(seed=5 + episode) for env in (local, remote)]
-        assert all(np.allclose(got[0][0][a], got[1][0][a], atol=1e-5) for a in local.possible_agents)
+        assert all(np.array_equal(got[0][0][a], got[1][0][a]) for a in local.possible_agents)
         rng = np.random.default_rng(episode)
         steps = 0
         while local.agents and steps < 60:
@@ -221,8 +222,8 @@ def test_a_remote_fleet_gives_the_same_episodes_as_the_core_in_process(daemon_fa
             actions = {a: rng.uniform(-1, 1, 2).astype(np.float32) for a in local.agents}
             (o1, r1, t1, _, i1), (o2, r2, t2, _, i2) = (env.step(actions) for env in (local, remote))
             for a in o1:
-                assert i1[a]["pose"][:2] == i2[a]["pose"][:2]  # bit for bit
-                assert np.allclose(o1[a], o2[a], atol=1e-5) and r1[a] == pytest.approx(r2[a], abs=1e-6)
+                assert i1[a] == i2[a]  # bit for bit
+                assert np.array_equal(o1[a], o2[a]) and r1[a] == r2[a]
                 assert t1[a] == t2[a]
             steps += 1
         assert steps > 5
@@ -321,3 +322,14 @@ def test_the_keep_clear_cells_answer_as_checking_every_point_does(
     """Places are kept a metre from other robots' starts and goals; the cells that make this
     fast for a thousand robots must find exactly what a check of every point finds."""
     assert KeepClear(points).near(x, y) == any(math.dist((x, y), p) < 1.0 for p in points)
+
+
+def test_a_robot_deleted_behind_the_fleet_envs_back_is_a_clear_error() -> None:
+    from learn.navigate_fleet import FleetNavigateEnv
+
+    env = FleetNavigateEnv(robots=2, lidar_noise=False)
+    env.reset(seed=3)
+    env.fleet.delete_many(["tb3_1"])  # somebody else's doing (on a daemon: fleet delete tb3_1)
+    with pytest.raises(FleetError, match="no robot with namespace 'tb3_1'"):  # refused, nothing moved
+        env.step({a: np.zeros(2, np.float32) for a in env.agents})
+    env.close()

@@ -45,7 +45,7 @@ def test_navigate_draws_inside_turtlebot3_worlds_wall() -> None:
     steps, no raster): every drawn start and goal is within a step of a pose it reached."""
     env = NavigateEnv(lidar_noise=False)
     model = MODELS["burger"]
-    sx, sy, _ = env.sim.world.default_spawn
+    sx, sy, _ = env.places.geometry.default_spawn
     step = 0.1
     seen = {(0, 0)}
     todo = collections.deque([(0, 0)])
@@ -53,10 +53,7 @@ def test_navigate_draws_inside_turtlebot3_worlds_wall() -> None:
         i, j = todo.popleft()
         for di, dj in ((1, 0), (-1, 0), (0, 1), (0, -1)):
             cell = (i + di, j + dj)
-            if (
-                cell not in seen
-                and env.sim.physics.blocker(model, sx + cell[0] * step, sy + cell[1] * step, 0.0) is None
-            ):
+            if cell not in seen and not env.places.touches(model, sx + cell[0] * step, sy + cell[1] * step, 0.0):
                 seen.add(cell)
                 todo.append(cell)
     assert 1200 < len(seen) < 3000  # the hexagon's floor, not the rectangle of the bounds (~6 000)

@@ -33,8 +33,6 @@ from protocol.keys import Keys
 from protocol.messages import Time
 from simd.adapters.ros2.session import ros_config
 from simd.adapters.ros2.shared_fleet import FleetRequests, Speaker
-from simd.engine.ports import RobotList as EngineRobotList
-from simd.engine.ports import StepResult
 
 KEYS = Keys("shared")
 
@@ -168,12 +166,13 @@ def test_the_daemons_replies_make_one_answer(router: str) -> None:
 
         assert wait_until(lambda: listers() == 2, 10.0)  # both daemons are there
         spawned = ask(SpawnRequest(name="r1"))  # only the daemon it is placed on replies
-        assert (spawned.name, spawned.model.name, spawned.x, spawned.yaw) == ("r1", "burger", 1.0, 0.5)
+        assert isinstance(spawned, RobotRecord)  # the services encode from the protocol's records
+        assert (spawned.name, spawned.model, spawned.pose.x, spawned.pose.yaw) == ("r1", "burger", 1.0, 0.5)
         assert ask(DeleteRequest(name="r1")).name == "r1"  # the robot's daemon wins over not_found
         listed = ask(ListRequest())
-        assert isinstance(listed, EngineRobotList) and [r.name for r in listed.robots] == ["r1", "r2"]
+        assert isinstance(listed, RobotList) and [r.name for r in listed.robots] == ["r1", "r2"]
         stepped = ask(StepRequest(ticks=5))
-        assert isinstance(stepped, StepResult) and (stepped.ticks_run, stepped.cancelled) == (3, True)
+        assert isinstance(stepped, StepReply) and (stepped.ticks_run, stepped.cancelled) == (3, True)
         assert ask(ClockRequest()).tick == 33
         refused = ask(PauseRequest())
         assert isinstance(refused, FleetError) and refused.code == ErrorCode.NOT_ALLOWED

@@ -33,7 +33,8 @@ from typing import Any
 
 import zenoh
 
-from protocol.control import Clock
+from protocol.control import DEFAULT_DAEMON_ID, Clock
+from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import Time
 from simd.adapters.ros2 import cdr, gazebo_services, graph, node_entities, simulation_services
 from simd.adapters.ros2.command_intake import RosCommandIntake
@@ -142,7 +143,8 @@ class Ros2Adapter:
         self._heard_speaker: str | None = None  # the speaker last logged
         self._closing = False
         if shared is None:
-            self._ask = engine_ask(engine.submit)
+            # the records are only read by the services (never sent): the default key space will do
+            self._ask = engine_ask(engine.submit, Keys(DEFAULT_PREFIX), DEFAULT_DAEMON_ID)
             self._follow_speaker()
         else:
             self._ask = FleetRequests(shared.session, shared.keys, self._dt).ask

@@ -22,7 +22,7 @@ from typing import Any
 from protocol.control import DeleteRequest, SpawnRequest
 from protocol.errors import ErrorCode, FleetError
 from simd.adapters.ros2.service_server import Call, Service
-from simd.engine.ports import Result
+from simd.adapters.ros2.shared_fleet import Message
 
 #: The largest ``xml`` accepted (a TurtleBot3 SDF is about 15 kB).
 MAX_XML_BYTES = 1 << 20
@@ -132,7 +132,7 @@ def _serve(
         return _respond(call, False, str(e))
     name = request.name
 
-    def then(result: Result | FleetError) -> None:
+    def then(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _respond(call, False, failed(name, result))
         _respond(call, True, ok(name))

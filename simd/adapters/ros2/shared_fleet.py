@@ -26,7 +26,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import zenoh
 
@@ -40,21 +40,28 @@ from protocol.control import (
     PauseRequest,
     Request,
     ResumeRequest,
+    RobotList,
     RobotRecord,
     SpawnRequest,
     StepReply,
     StepRequest,
 )
-from protocol.control import RobotList as RecordList
 from protocol.errors import ErrorCode, FleetError
+from protocol.gather import GATHER, Gathering, merge
 from protocol.keys import Keys
-from simd.core.models import MODELS
+from protocol.messages import Time
 from simd.core.snapshot import RobotState
-from simd.engine.ports import Result, RobotList, StepResult
+from simd.engine.ports import Reply, Result, StepResult
+from simd.engine.ports import RobotList as EngineRobotList
+from simd.wire import convert
 
 log = logging.getLogger(__name__)
 
-Answer = Callable[[Result | FleetError], None]
+#: What the services are answered with: the fleet protocol's messages, whoever answers (this
+#: daemon's engine, or the fleet through its protocol), so that they encode from one kind of
+#: record
+Message = RobotRecord | RobotList | StepReply | Clock
+Answer = Callable[[Message | FleetError], None]
 #: Ask the simulation something: the answer comes once, on any thread.
 Ask = Callable[[Request, Answer], None]
 
@@ -147,24 +154,11 @@ class Speaker:
 
 # -- asking the fleet -----------------------------------------------------------------------------
 
-#: How the daemons' replies to a request make one answer: ``first`` (the one daemon that owns
-#: the answer replies: a spawn placed by name, the clock), ``any`` (every daemon replies; one
-#: good reply is the answer, a refusal only when none is good: a delete, the list, pause,
-#: resume, reset), ``every`` (all must have acted: a step)
-Gather = Literal["first", "any", "every"]
-_GATHER: dict[type[Any], Gather] = {
-    SpawnRequest: "first",
-    ClockRequest: "first",
-    DeleteRequest: "any",
-    ListRequest: "any",
-    PauseRequest: "any",
-    ResumeRequest: "any",
-    StepRequest: "every",
-}
+#: the message each request is answered with (the others: the clock)
 _REPLY: dict[type[Any], type[Any]] = {
     SpawnRequest: RobotRecord,
     DeleteRequest: RobotRecord,
-    ListRequest: RecordList,
+    ListRequest: RobotList,
     StepRequest: StepReply,
 }
 _KIND = {request: kind for kind, request in REQUESTS.items()}
@@ -172,8 +166,9 @@ _KIND = {request: kind for kind, request in REQUESTS.items()}
 
 class FleetRequests:
     """Requests asked of the whole fleet through its protocol, as ``fleet`` asks them (zenoh
-    target *all*, no consolidation), the daemons' replies made one answer as the engine gives
-    it. Nothing blocks: the replies come on zenoh's threads and the answer with the last one."""
+    target *all*, no consolidation), the daemons' replies made one answer as every client
+    makes it (protocol/gather.py). Nothing blocks: the replies come on zenoh's threads and the
+    answer with the last one (or the first, when that one is the answer)."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, tick_s: float) -> None:
         self.session = session
@@ -183,47 +178,50 @@ class FleetRequests:
     def ask(self, request: Request, then: Answer) -> None:
         kind = _KIND[type(request)]
         key = getattr(self.keys, kind)
-        gather = _GATHER.get(type(request), "any")
         reply_type = _REPLY.get(type(request), Clock)
         timeout = FORWARD_TIMEOUT_S
         if isinstance(request, StepRequest):
             timeout += request.ticks * self.tick_s  # a long step answers when it is done
-        replies: list[Any] = []
-        errors: list[FleetError] = []
+        observe = request.observe if isinstance(request, StepRequest) else []
+        gathering: Gathering[Message] = Gathering(GATHER.get(type(request), "any"))
         lock = threading.Lock()
         answered = [False]
 
-        def answer(result: Result | FleetError) -> None:
+        def answer() -> None:
             with lock:
                 if answered[0]:
                     return
                 answered[0] = True
+                try:
+                    result: Message | FleetError = merge(gathering.answer(nobody), observe)
+                except FleetError as e:
+                    result = e
             try:
                 then(result)
             except Exception:  # the handler's bug: logged, the fleet goes on
                 log.exception("answering %s failed", kind)
 
+        nobody = FleetError(ErrorCode.UNAVAILABLE, f"no daemon of the fleet answered {key}")
+
         def on_reply(reply: zenoh.Reply) -> None:
+            message: Message | FleetError
             if reply.ok is not None:
                 try:
                     message = decode(reply.ok.payload.to_bytes(), reply_type, MAX_REPLY_BYTES)
                 except FleetError as e:
-                    errors.append(e)
-                    return
-                if gather == "first":
-                    return answer(_result(request, [message]))
-                replies.append(message)
+                    message = e
             else:
                 assert reply.err is not None
-                err = reply_error(reply.err.payload.to_bytes(), f"the fleet did not answer {key} within {timeout:g} s")
-                if gather == "first":
-                    return answer(err)
-                errors.append(err)
+                message = reply_error(
+                    reply.err.payload.to_bytes(), f"the fleet did not answer {key} within {timeout:g} s"
+                )
+            with lock:
+                known = not answered[0] and gathering.add(message)
+            if known:
+                answer()
 
         def on_done() -> None:
-            if replies and not (errors and gather == "every"):
-                return answer(_result(request, replies))
-            answer(errors[0] if errors else FleetError(ErrorCode.UNAVAILABLE, f"no daemon of the fleet answered {key}"))
+            answer()
 
         bare = isinstance(request, (ListRequest, ClockRequest, PauseRequest, ResumeRequest))
         try:
@@ -237,47 +235,36 @@ class FleetRequests:
                 timeout=timeout,
             )
         except zenoh.ZError as e:
-            answer(FleetError(ErrorCode.UNAVAILABLE, f"cannot ask the fleet on {key}: {e}"))
+            nobody = FleetError(ErrorCode.UNAVAILABLE, f"cannot ask the fleet on {key}: {e}")
+            answer()
 
 
-def _result(request: Request, replies: list[Any]) -> Result:
-    """The engine's kind of answer from the daemons' messages."""
-    first = replies[0]
-    if isinstance(first, RobotRecord):
-        return robot_state(first)
-    if isinstance(first, RecordList):
-        robots = sorted((r for rl in replies for r in rl.robots), key=lambda r: r.name)
-        return RobotList(max(rl.stamp.to_seconds() for rl in replies), [robot_state(r) for r in robots])
-    if isinstance(first, StepReply):
-        ticks = min(r.ticks_run for r in replies)
-        return StepResult(first, ticks, any(r.cancelled for r in replies))
-    assert isinstance(first, Clock)
-    return first
+def protocol_message(result: Result, keys: Keys, daemon_id: str) -> Message:
+    """The fleet protocol's message for this daemon's engine's answer, as its fleet adapter
+    sends it (a step's observations left out: the services ask for none)."""
+    if isinstance(result, RobotState):
+        return convert.robot_record(result, keys, daemon_id)
+    if isinstance(result, EngineRobotList):
+        robots = [convert.robot_record(s, keys, daemon_id) for s in result.robots]
+        return RobotList(stamp=Time.from_seconds(result.time), robots=robots)
+    if isinstance(result, StepResult):
+        fields = {f: getattr(result.clock, f) for f in result.clock.__struct_fields__}
+        return StepReply(**fields, ticks_run=result.ticks_run, cancelled=result.cancelled)
+    if isinstance(result, Clock):
+        return result
+    raise TypeError(f"the services ask nothing answered with {type(result).__name__}")
 
 
-def robot_state(record: RobotRecord) -> RobotState:
-    """A robot as the engine reports it, from the fleet's record (no sideways velocity: the
-    record has none)."""
-    p, s = record.pose, record.spawn_pose
-    return RobotState(
-        name=record.name,
-        namespace=record.namespace,
-        model=MODELS[record.model],
-        x=p.x,
-        y=p.y,
-        yaw=p.yaw,
-        linear_velocity=record.linear_velocity,
-        angular_velocity=record.angular_velocity,
-        spawn_pose=(s.x, s.y, s.yaw),
-    )
-
-
-def engine_ask(submit: Callable[[Request, Answer], None]) -> Ask:
-    """Ask one daemon's own engine (``Engine.submit``; busy comes back as the answer)."""
+def engine_ask(submit: Callable[[Request, Reply], None], keys: Keys, daemon_id: str) -> Ask:
+    """Ask one daemon's own engine (``Engine.submit``; busy comes back as the answer), its
+    answers turned into the protocol's messages."""
 
     def ask(request: Request, then: Answer) -> None:
+        def reply(result: Result | FleetError) -> None:
+            then(result if isinstance(result, FleetError) else protocol_message(result, keys, daemon_id))
+
         try:
-            submit(request, then)
+            submit(request, reply)
         except FleetError as e:
             then(e)
 

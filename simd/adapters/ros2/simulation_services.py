@@ -30,15 +30,17 @@ from protocol.control import (
     PauseRequest,
     ResetRequest,
     ResumeRequest,
+    RobotList,
+    RobotRecord,
     SpawnRequest,
+    StepReply,
     StepRequest,
 )
 from protocol.errors import ErrorCode, FleetError
 from simd.adapters.ros2 import gazebo_services as gz
 from simd.adapters.ros2.service_server import Call, Service
+from simd.adapters.ros2.shared_fleet import Message
 from simd.core.models import MODELS
-from simd.core.snapshot import RobotState
-from simd.engine.ports import Result, RobotList, StepResult
 
 PREFIX = "/fleetsim"
 PKG = "simulation_interfaces"
@@ -162,7 +164,7 @@ def spawn_entity(call: Call) -> None:
         candidate = name if n == 0 else f"{name}_{n}"
         req = SpawnRequest(name=candidate, namespace=namespace, model=model, x=float(p.x), y=float(p.y), yaw=yaw)
 
-        def then(result: Result | FleetError) -> None:
+        def then(result: Message | FleetError) -> None:
             if isinstance(result, FleetError):
                 taken = result.code == ErrorCode.ALREADY_EXISTS and result.field == "name"
                 if rename and taken and n < MAX_RENAMES:
@@ -176,7 +178,7 @@ def spawn_entity(call: Call) -> None:
 
 
 def delete_entity(call: Call) -> None:
-    def then(result: Result | FleetError) -> None:
+    def then(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _answer(call, NOT_FOUND if result.code == ErrorCode.NOT_FOUND else OPERATION_FAILED, result.message)
         _answer(call, OK)
@@ -190,7 +192,7 @@ def delete_entity(call: Call) -> None:
 
 
 def _listed(call: Call, use: Callable[[RobotList], None]) -> None:
-    def then(result: Result | FleetError) -> None:
+    def then(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _failed(call, result.message)
         assert isinstance(result, RobotList)
@@ -218,18 +220,19 @@ def get_entities(call: Call) -> None:
     _listed(call, use)
 
 
-def _state(call: Call, robot: RobotState, t: float) -> Any:
+def _state(call: Call, robot: RobotRecord, t: float) -> Any:
+    """The entity's state from the fleet's record of it (world frame; the record's velocities are the body's)."""
     m = "geometry_msgs/msg/"
-    c, s = math.cos(robot.yaw), math.sin(robot.yaw)
+    x, y, yaw = robot.pose.x, robot.pose.y, robot.pose.yaw
+    c, s = math.cos(yaw), math.sin(yaw)
     v, lat = robot.linear_velocity, robot.lateral_velocity
     sec, ns = divmod(round(t * 1e9), 1_000_000_000)
     return call.make(
         f"{PKG}/msg/EntityState",
         header=call.make("std_msgs/msg/Header", stamp=call.make("builtin_interfaces/msg/Time", sec=sec, nanosec=ns),
                          frame_id="world"),
-        pose=call.make(m + "Pose", position=call.make(m + "Point", x=robot.x, y=robot.y, z=0.0),
-                       orientation=call.make(m + "Quaternion", x=0.0, y=0.0, z=math.sin(robot.yaw / 2),
-                                             w=math.cos(robot.yaw / 2))),
+        pose=call.make(m + "Pose", position=call.make(m + "Point", x=x, y=y, z=0.0),
+                       orientation=call.make(m + "Quaternion", x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2))),
         twist=call.make(m + "Twist", linear=call.make(m + "Vector3", x=v * c - lat * s, y=v * s + lat * c, z=0.0),
                         angular=call.make(m + "Vector3", x=0.0, y=0.0, z=robot.angular_velocity)),
         acceleration=call.make(m + "Accel", linear=call.make(m + "Vector3", x=0.0, y=0.0, z=0.0),
@@ -243,7 +246,7 @@ def get_entity_state(call: Call) -> None:
     def use(listed: RobotList) -> None:
         for r in listed.robots:
             if entity in (r.name, r.namespace, f"/{r.namespace}"):
-                return _answer(call, OK, state=_state(call, r, listed.time))
+                return _answer(call, OK, state=_state(call, r, listed.stamp.to_seconds()))
         _answer(call, NOT_FOUND, f"no entity named {entity!r}")
 
     _listed(call, use)
@@ -257,7 +260,7 @@ def set_entity_state(call: Call) -> None:
 
 
 def get_simulation_state(call: Call) -> None:
-    def then(result: Result | FleetError) -> None:
+    def then(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _failed(call, result.message)
         state = PAUSED if getattr(result, "paused", False) else PLAYING
@@ -273,12 +276,12 @@ def set_simulation_state(call: Call) -> None:
     if target not in (STOPPED, PLAYING, PAUSED):
         return _answer(call, INCORRECT_TRANSITION, f"fleetsim always has its world loaded (state {target})")
 
-    def done(result: Result | FleetError) -> None:
+    def done(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _answer(call, STATE_TRANSITION_ERROR, result.message)
         _answer(call, OK)
 
-    def now(result: Result | FleetError) -> None:
+    def now(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _failed(call, result.message)
         paused = bool(getattr(result, "paused", False))
@@ -301,10 +304,10 @@ def step_simulation(call: Call) -> None:
     if steps < 1:
         return _failed(call, "steps must be at least 1")
 
-    def then(result: Result | FleetError) -> None:
+    def then(result: Message | FleetError) -> None:
         if isinstance(result, FleetError):
             return _failed(call, result.message)
-        assert isinstance(result, StepResult)
+        assert isinstance(result, StepReply)
         if result.cancelled:
             return _failed(call, f"cancelled after {result.ticks_run} of {steps} steps (paused, resumed or reset)")
         _answer(call, OK)
