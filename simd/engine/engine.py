@@ -143,6 +143,7 @@ class Engine(ServedHere):
         """Add an adapter; it hears of every robot already in the world (restored from a
         state file, or attached late) as if each had just been spawned."""
         self.adapters.append(adapter)
+        self._known = self._status()
         for state in self.sim.states():
             adapter.on_event(Spawned(state, self.sim.time))
 
@@ -217,8 +218,9 @@ class Engine(ServedHere):
         return self._board.status(self.sim, self._time, self.paused, self.lockstep, measured_cost)
 
     def _make_known(self) -> None:
-        """Publish the engine's status for other threads (after every tick and request)."""
-        self._known = self._status()
+        """Publish the engine's status for other threads (none without adapters: a local fleet)."""
+        if self.adapters:
+            self._known = self._status()
 
     # -- the loop ---------------------------------------------------------------------------
 
