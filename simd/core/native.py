@@ -45,6 +45,8 @@ KERNELS: dict[str, Kernel] = {
     "drive": Kernel("simd.core._drive", "simd/core/_drive.c"),
 }
 
+CORE_KERNELS = len(KERNELS)
+
 
 def register(label: str, kernel: Kernel) -> None:
     """Add a layer's compiled fast path under ``label`` (once; the same again is no change)."""
@@ -86,7 +88,8 @@ def status() -> dict[str, str]:
     """Which path each hot loop takes in this environment, for the daemon's start-up line and
     the benchmark's report: label -> 'native', or 'numpy (why)'."""
     out: dict[str, str] = {}
-    for label in KERNELS:
+    core = list(KERNELS)[:CORE_KERNELS]  # the core's own first, then those registered, by name (the
+    for label in core + sorted(set(KERNELS) - set(core)):  # order of imports decides nothing)
         module, why = load(label)
         out[label] = "native" if module is not None else f"numpy ({why})"
     return out
