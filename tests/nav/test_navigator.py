@@ -29,12 +29,19 @@ Robot = tuple[str, tuple[float, float, float], tuple[float, float]]
 
 
 def drive(
-    world: WorldGeometry, robots: list[Robot], seconds: float, config: NavConfig | None = None
+    world: WorldGeometry,
+    robots: list[Robot],
+    seconds: float,
+    config: NavConfig | None = None,
+    parked: tuple[float, float] | None = None,
 ) -> tuple[dict[str, NavigationResult], float, Simulation]:
-    """Spawn the robots, send each to its goal, tick until all ended or ``seconds`` passed:
-    the results, the closest two robots' centres came, and the simulation."""
+    """Spawn the robots (and one with no goal at ``parked``), send each to its goal, tick until
+    all ended or ``seconds`` passed: the results, the closest two robots' centres came, and
+    the simulation."""
     sim = Simulation(world, SimConfig(seed=0))
     nav = Navigator(world, sim.config.lidar, sim.robots, config)
+    if parked is not None:
+        sim.spawn(SpawnRequest(name="parked", x=parked[0], y=parked[1], yaw=0.0))
     for name, (x, y, yaw), _ in robots:
         sim.spawn(SpawnRequest(name=name, x=x, y=y, yaw=yaw))
     for name, _, (gx, gy) in robots:
@@ -380,36 +387,8 @@ def test_a_goal_beside_a_robot_is_reached_within_its_tolerance() -> None:
     and the goal is reached (it used to wait there until the goal ended ``blocked``)."""
     world = open_world()
     robots: list[Robot] = [("a", (-1.5, 0.0, 0.0), (1.12, 0.0))]
-    results, closest, sim = _drive_beside(world, robots, parked=(1.42, 0.0), seconds=40.0)
+    results, closest, sim = drive(world, robots, 40.0, NavConfig(patience=20.0), parked=(1.42, 0.0))
     reached_all(results, robots, sim)
     assert results["a"].navigation_time < 20.0  # no waiting for a patience to end it
     assert closest > TOUCH_M
 
-
-def _drive_beside(
-    world: WorldGeometry, robots: list[Robot], parked: tuple[float, float], seconds: float
-) -> tuple[dict[str, NavigationResult], float, Simulation]:
-    """As ``drive``, with one more robot parked at ``parked`` (no goal)."""
-    sim = Simulation(world, SimConfig(seed=0))
-    nav = Navigator(world, sim.config.lidar, sim.robots, NavConfig(patience=20.0))
-    sim.spawn(SpawnRequest(name="parked", x=parked[0], y=parked[1], yaw=0.0))
-    for name, (x, y, yaw), _ in robots:
-        sim.spawn(SpawnRequest(name=name, x=x, y=y, yaw=yaw))
-    for name, _, (gx, gy) in robots:
-        robot = sim.find(name)
-        assert robot is not None
-        nav.goal(name, robot.model, NavigateRequest(x=gx, y=gy, tolerance=0.1), sim.time)
-    results: dict[str, NavigationResult] = {}
-    closest = math.inf
-    for _ in range(int(seconds / sim.config.dt)):
-        nav.step(sim.robots, sim.tick, sim.time)
-        nav.apply(sim.robots, sim.command_rows)
-        nav.observe(sim.step())
-        for r in nav.take_events().results:
-            results[r.robot] = r
-        t = sim.robots
-        d = np.hypot(t.x[:, None] - t.x[None, :], t.y[:, None] - t.y[None, :]) + np.eye(len(t.x)) * 9.0
-        closest = min(closest, float(d.min()))
-        if len(results) == len(robots):
-            break
-    return results, closest, sim
