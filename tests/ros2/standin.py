@@ -482,6 +482,7 @@ class StandIn:
         self.gid = hashlib.md5(str(self.session.zid()).encode()).digest()
         self._seq = 0
         self._entities: list[Any] = []
+        self._seen_services: set[str] = set()  # services a call found in the graph once
         self.rejected: list[str] = []  # samples a ROS subscription would have dropped
 
     def close(self) -> None:
@@ -601,7 +602,17 @@ class StandIn:
     # services
     def call(self, name: str, srv_type: str, request: Any, timeout: float = 10.0) -> Any:
         """As an rclcpp client: get with the attachment, take the reply whose sequence matches
-        (rclcpp drops any later reply of the same sequence: the call is no longer pending)."""
+        (rclcpp drops any later reply of the same sequence: the call is no longer pending).
+        The first call of a service waits for it to show in the graph (at most ``timeout``), as
+        ``ros2 service call`` waits for the service: a daemon declares its services one by one."""
+        if name not in self._seen_services:
+            kind = dds_name(srv_type)
+
+            def served(g: list[Entity]) -> bool:
+                return any(e.kind == "SS" and e.topic == name and e.type == kind for e in g)
+
+            if served(self.wait_graph(served, timeout)):
+                self._seen_services.add(name)
         for response in self._call(name, srv_type, request, timeout):
             return response
         raise TimeoutError(f"no reply from {name}")
