@@ -34,6 +34,7 @@ class Asks(Protocol):
 
     def cancel_goal(self, robot: str, goal_id: str = "") -> NavigationResult: ...
 
+
 #: while waiting, how often (wall seconds) the daemon is asked how the goal stands
 CHECK_EVERY_S = 2.0
 

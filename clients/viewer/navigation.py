@@ -90,6 +90,18 @@ class NavPath:
     raw: msgspec.Raw
 
 
+@dataclass(frozen=True)
+class GoalView:
+    """One goal under way as a still picture draws it (clients/viewer/snapshot.py)."""
+
+    x: float
+    y: float
+    yaw: float | None  # None: any heading will do
+    tolerance: float
+    state: str
+    path: list[tuple[float, float]]  # thinned, the robot first, the goal last; empty if none heard
+
+
 @dataclass
 class NavCursor:
     """What one page was sent: the board's counter then, and each robot's row and path version."""
@@ -243,6 +255,18 @@ class NavBoard:
             self._bump()
 
     # -- out ----------------------------------------------------------------------------------------
+
+    def under_way(self) -> dict[str, GoalView]:
+        """The goals that have not ended, with their paths (what a snapshot draws)."""
+        out = {}
+        for ns, row in self.goals.items():
+            if row.ended:
+                continue
+            p = self.paths.get(ns)
+            flat = msgspec.json.decode(p.raw) if p is not None and p.goal_id == row.goal_id else []
+            path = [(float(flat[i]), float(flat[i + 1])) for i in range(0, len(flat) - 1, 2)]
+            out[ns] = GoalView(row.x, row.y, row.yaw, row.tolerance, row.state, path)
+        return out
 
     def updates(self, cursor: NavCursor) -> bytes | None:
         """A ``nav`` message with what changed since ``cursor`` (which it advances), or None."""

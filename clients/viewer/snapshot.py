@@ -2,7 +2,10 @@
 
 :func:`fit` gives the world-to-pixel mapping a snapshot uses (tests use it to find robots in
 the image); :func:`render` draws; :func:`take_snapshot` connects, waits for every robot's
-odometry and one scan of each (bounded by a timeout), and writes the file.
+odometry and one scan of each (bounded by a timeout), asks for the goals under way and their
+paths, and writes the file. As on the page, a robot with a goal shows its path, the goal (the
+tolerance circle, a cross, an arrow if a heading is asked for) and, when it is not simply
+driving, a ring in its navigation state's colour; its label names the state.
 """
 
 from __future__ import annotations
@@ -10,7 +13,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,8 +21,10 @@ from typing import TYPE_CHECKING
 from PIL import Image, ImageDraw, ImageFont
 
 from clients.viewer.feed import Feed
+from clients.viewer.navigation import GoalView
 from clients.viewer.robot import RobotState
 from clients.viewer.state import FleetState, color_rgb
+from protocol.errors import FleetError
 
 if TYPE_CHECKING:
     from clients.api import FleetClient
@@ -39,6 +44,17 @@ ROBOT_EDGE: RGB = (8, 10, 14)
 HEADING: RGB = (250, 250, 250)
 TEXT: RGB = (226, 232, 240)
 MUTED: RGB = (140, 154, 170)
+
+#: navigation states, coloured as on the page (clients/viewer/static/viewer.js NAV_COLORS)
+NAV_COLORS: dict[str, RGB] = {
+    "planning": (159, 179, 200), "driving": (6, 214, 160), "waiting": (255, 209, 102),
+    "yielding": (251, 133, 0), "blocked": (255, 89, 94), "overridden": (247, 37, 133),
+}  # fmt: skip
+#: the states that get a ring round the robot (navigating, but not simply driving)
+NAV_RING = frozenset({"planning", "waiting", "yielding", "blocked", "overridden"})
+
+#: a robot farther than this (m) from its path is not joined to it (the page's PATH_OFF_M)
+PATH_OFF_M = 0.3
 
 SUPERSAMPLE = 2
 MARGIN = 0.04  # of the image side, around the content
@@ -132,8 +148,10 @@ def render(
     robots: Sequence[RobotState],
     size: int = 1024,
     sim_time: float | None = None,
+    goals: dict[str, GoalView] | None = None,
 ) -> tuple[Image.Image, Transform]:
-    """Draw the world, robots (footprint, heading, label), scans and trails."""
+    """Draw the world, robots (footprint, heading, label), scans and trails, and the
+    ``goals`` under way (paths, goal marks, state rings)."""
     tf = fit(world, [(r.x, r.y) for r in robots], size)
     k = SUPERSAMPLE
     big = tf.scaled(k)
@@ -179,13 +197,15 @@ def render(
         for x, y in r.scan_points(1):
             sx, sy = px(float(x), float(y))
             d.rectangle((sx - dot, sy - dot, sx + dot, sy + dot), fill=col)
+    goals = {r.namespace: goals[r.namespace] for r in robots if r.namespace in goals} if goals else {}
+    _draw_goals(d, px, big.scale, robots, goals)
     for r in robots:
         c, s = math.cos(r.yaw), math.sin(r.yaw)
         fp = r.footprint
         outline = [px(r.x + c * fp[i] - s * fp[i + 1], r.y + s * fp[i] + c * fp[i + 1]) for i in range(0, len(fp), 2)]
         if len(outline) >= 3:
             d.polygon(outline, fill=color_rgb(r.color), outline=ROBOT_EDGE, width=k)
-        reach = max((math.hypot(fp[i], fp[i + 1]) for i in range(0, len(fp), 2)), default=0.1)
+        reach = _reach(r)
         d.line(
             (px(r.x, r.y), px(r.x + c * reach * 1.45, r.y + s * reach * 1.45)),
             fill=HEADING,
@@ -194,12 +214,12 @@ def render(
 
     label_font = _font(13 * k)
     for r in robots:
-        reach = max(
-            (math.hypot(r.footprint[i], r.footprint[i + 1]) for i in range(0, len(r.footprint), 2)),
-            default=0.1,
-        )
+        reach = _reach(r)
         lx, ly = px(r.x, r.y)
         text = r.name if r.name == r.namespace else f"{r.name} ({r.namespace})"
+        goal = goals.get(r.namespace)
+        if goal is not None:
+            text += f" · {goal.state}"
         pos = (lx + reach * big.scale + 4 * k, ly - reach * big.scale - 14 * k)
         d.text((pos[0] + k, pos[1] + k), text, fill=BACKGROUND, font=label_font)
         d.text(pos, text, fill=TEXT, font=label_font)
@@ -212,6 +232,72 @@ def render(
     d.line((16 * k, y, 16 * k + bar * big.scale, y), fill=TEXT, width=2 * k)
     d.text((20 * k + bar * big.scale, y - 9 * k), f"{bar:g} m", fill=MUTED, font=_font(12 * k))
     return img.resize((tf.width, tf.height), Image.Resampling.LANCZOS), tf
+
+
+def goal_rgb(color: int) -> RGB:
+    """The colour of a robot's path and goal mark: its own, a little faded into the floor."""
+    return _mix(color_rgb(color), FLOOR, 0.7)
+
+
+def path_ahead(path: list[tuple[float, float]], x: float, y: float) -> list[tuple[float, float]]:
+    """What is left of ``path`` for a robot at (x, y): from the robot when it is within
+    PATH_OFF_M of the path, else from the path's point nearest to it (no line through a wall to
+    get there), as the page draws it. The path was planned from where the robot stood then."""
+    if len(path) < 2:
+        return []
+    best, at, k_best = math.inf, path[0], 0
+    for k in range(len(path) - 1):
+        (ax, ay), (bx, by) = path[k], path[k + 1]
+        dx, dy = bx - ax, by - ay
+        length2 = dx * dx + dy * dy
+        t = 0.0 if length2 == 0 else min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / length2))
+        px, py = ax + t * dx, ay + t * dy
+        off = math.hypot(px - x, py - y)
+        if off <= best:
+            best, at, k_best = off, (px, py), k
+    return [(x, y) if best <= PATH_OFF_M else at, *path[k_best + 1 :]]
+
+
+def _reach(r: RobotState) -> float:
+    fp = r.footprint
+    return max((math.hypot(fp[i], fp[i + 1]) for i in range(0, len(fp), 2)), default=0.1)
+
+
+def _draw_goals(
+    d: ImageDraw.ImageDraw,
+    px: Callable[[float, float], tuple[float, float]],
+    scale: float,
+    robots: Sequence[RobotState],
+    goals: dict[str, GoalView],
+) -> None:
+    """Each goal's path from the robot on and its mark, in the robot's colour; a ring in the
+    state's colour round each robot that navigates but is not simply driving."""
+    k = SUPERSAMPLE
+    for r in robots:
+        goal = goals.get(r.namespace)
+        if goal is None:
+            continue
+        col = goal_rgb(r.color)
+        ahead = path_ahead(goal.path, r.x, r.y)
+        if len(ahead) >= 2:
+            d.line([px(x, y) for x, y in ahead], fill=col, width=2 * k, joint="curve")
+        cx, cy = px(goal.x, goal.y)
+        rr = max(goal.tolerance * scale, 3 * k)
+        d.ellipse((cx - rr, cy - rr, cx + rr, cy + rr), outline=col, width=2 * k)
+        c = max(3 * k, min(7 * k, rr * 0.5))
+        d.line((cx - c, cy, cx + c, cy), fill=col, width=2 * k)
+        d.line((cx, cy - c, cx, cy + c), fill=col, width=2 * k)
+        if goal.yaw is not None:
+            length, a = max(rr + 8 * k, 16 * k), -goal.yaw  # image y points down
+            ex, ey = cx + math.cos(a) * length, cy + math.sin(a) * length
+            d.line((cx, cy, ex, ey), fill=col, width=2 * k)
+            for side in (-0.45, 0.45):
+                tip = (ex - 7 * k * math.cos(a + side), ey - 7 * k * math.sin(a + side))
+                d.line((ex, ey, *tip), fill=col, width=2 * k)
+        if goal.state in NAV_RING:
+            x, y = px(r.x, r.y)
+            ring = _reach(r) * scale + 4 * k
+            d.ellipse((x - ring, y - ring, x + ring, y + ring), outline=NAV_COLORS[goal.state], width=2 * k)
 
 
 def take_snapshot(client: FleetClient, path: Path, size: int = 1024, timeout: float = 5.0) -> int:
@@ -230,8 +316,16 @@ def take_snapshot(client: FleetClient, path: Path, size: int = 1024, timeout: fl
                 "not every robot reported odometry and a scan within %g s; drawing what arrived",
                 timeout,
             )
+        # the robots with a path have a goal under way: wait for its row (P/navigation, 2 Hz)
+        try:
+            planned = set(client.plans()) & expected
+        except FleetError as e:  # a daemon too busy to say: no goals drawn
+            log.warning("could not ask for the robots' paths: %s", e)
+            planned = set()
+        while not state.has_goal(planned) and time.monotonic() < deadline:
+            time.sleep(0.02)
         robots = state.robots()
-        img, _ = render(state.world, robots, size, state.sim_time)
+        img, _ = render(state.world, robots, size, state.sim_time, state.goals_under_way())
     finally:
         feed.close()
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -44,7 +44,7 @@ from clients.viewer.decimate import (
     pick_trails,
     thin_path,
 )
-from clients.viewer.navigation import NavBoard, NavCursor
+from clients.viewer.navigation import GoalView, NavBoard, NavCursor
 from clients.viewer.robot import TRAIL_MIN_STEP, TRAIL_SECONDS, KeptScan, RobotState
 from fleetcommon.arrays import F32
 from protocol.control import Clock, RobotRecord, WorldInfo
@@ -65,7 +65,6 @@ PALETTE: tuple[str, ...] = (
     "#c5e35a",  # lime
     "#ff595e",  # red
 )
-
 
 
 def color_index(namespace: str) -> int:
@@ -253,6 +252,17 @@ class FleetState:
         thinned = {ns: (p, thin_path(p.points)) for ns, p in plans.items() if p.robot == ns}
         with self._lock:
             self.nav.initial_plans({ns: v for ns, v in thinned.items() if ns in self._robots})
+
+    def goals_under_way(self) -> dict[str, GoalView]:
+        """Each present robot's goal under way, with its path (NavBoard.under_way)."""
+        with self._lock:
+            return self.nav.under_way()
+
+    def has_goal(self, namespaces: set[str]) -> bool:
+        """True when every robot in ``namespaces`` has its goal's row (from ``P/navigation``)
+        and a path."""
+        with self._lock:
+            return all(ns in self.nav.goals and ns in self.nav.paths for ns in namespaces)
 
     def nav_updates(self, cursor: NavCursor) -> bytes | None:
         """The ``nav`` message a page with ``cursor`` needs, or None (see NavBoard.updates)."""
@@ -464,5 +474,3 @@ class FleetState:
         stats.nbytes = len(data)
         stats.build_ms = (time.perf_counter() - t0) * 1e3
         return version, meta, data, stats
-
-

@@ -26,8 +26,6 @@ BURGER = (0.22, 2.84)
 WAFFLE = (0.26, 1.82)
 
 
-
-
 def press(state: TeleopState, keys: str | list[str]) -> None:
     for k in keys:
         state.press(k)
@@ -120,7 +118,6 @@ def test_nearest_obstacle_bearing_is_relative_to_the_robot() -> None:
     assert d == pytest.approx(0.4) and b == pytest.approx(270 * 6.28 / 359 - 2 * math.pi)  # right
     assert nearest_obstacle(scan_with({5: 0.05}, range_min=0.12)) is None  # below range_min
     assert describe_bearing(0.05) == "+3° (ahead)"
-
 
 
 @pytest.mark.parametrize(

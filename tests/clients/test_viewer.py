@@ -267,6 +267,34 @@ def test_snapshot_png_shows_robots_at_their_poses(daemon: Daemon, tmp_path: Path
         assert colour_count(img, tf.to_pixel(0.55, -0.55), 0.3 * tf.scale, rgb) == 0
 
 
+def test_snapshot_draws_a_goal_and_its_path(daemon: Daemon, tmp_path: Path) -> None:
+    c = daemon.client()
+    c.spawn("tb3_0", -2.0, -0.5)
+    c.spawn("tb3_1", 0.5, -2.0, math.pi / 2)
+    goal = c.navigate("tb3_0", 1.5, 0.5, yaw=1.0, tolerance=0.3)
+    deadline = time.monotonic() + 10
+    while "tb3_0" not in c.plans() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    plan = c.plans()["tb3_0"].points
+    out = tmp_path / "nav.png"
+    size = 800
+    res = subprocess.run(
+        fleet_view(daemon, "--snapshot", str(out), "--size", str(size)),
+        capture_output=True, text=True, timeout=30, cwd=ROOT,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert not goal.done
+    img = Image.open(out)
+    tf = snapshot.fit(c.world(), [], size)
+    rgb = snapshot.goal_rgb(color_index("tb3_0"))
+    assert colour_count(img, tf.to_pixel(1.5, 0.5), 4, rgb) >= 6  # the cross at the goal
+    assert colour_count(img, tf.to_pixel(1.5, 0.2), 3, rgb, 30) >= 3  # the tolerance circle, 0.3 m below
+    heading = tf.to_pixel(1.5 + 0.2 * math.cos(1.0), 0.5 + 0.2 * math.sin(1.0))
+    assert colour_count(img, heading, 3, rgb, 30) >= 3  # the arrow of the heading asked for
+    (ax, ay), (bx, by) = plan[-2], plan[-1]  # the path's last stretch (the robot is far from it)
+    assert colour_count(img, tf.to_pixel((ax + bx) / 2, (ay + by) / 2), 3, rgb, 30) >= 3
+
+
 # -- the live page ------------------------------------------------------------------------------
 
 

@@ -17,9 +17,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from clients.viewer import snapshot
 from clients.viewer.decimate import PATH_MAX_POINTS, thin_path
 from clients.viewer.navigation import ENDED_KEEP_S, MAX_TEXT, NavBoard, NavCursor
-from clients.viewer.state import FleetState
+from clients.viewer.robot import RobotState
+from clients.viewer.state import FleetState, color_index
 from protocol.codec import encode
 from protocol.control import Pose2D
 from protocol.messages import Time
@@ -192,8 +194,15 @@ def test_odd_values_are_drawn_sanely_or_not_at_all() -> None:
         summary(
             row("a", x=math.nan),  # no point to draw: dropped
             row("b", y=math.inf),
-            row("c", state="<img src=x onerror=alert(1)>", goal_id=long, other=long, tolerance=math.inf,
-                yaw=math.nan, has_yaw=True),
+            row(
+                "c",
+                state="<img src=x onerror=alert(1)>",
+                goal_id=long,
+                other=long,
+                tolerance=math.inf,
+                yaw=math.nan,
+                has_yaw=True,
+            ),
             row("d", tolerance=-3.0),
             row("e", tolerance=1e9, yaw=1.0, has_yaw=False),
         )
@@ -211,6 +220,42 @@ def test_odd_values_are_drawn_sanely_or_not_at_all() -> None:
     assert goals["d"][1] == "driving"  # a result of a goal it does not have changes nothing
     assert msg["paths"] == {"b": [1.0, 1.0]}
     assert "NaN" not in json.dumps(msg)
+
+
+def test_a_snapshot_draws_the_goals_under_way_and_rings_a_robot_that_waits() -> None:
+    state = present("a", "b", "c")
+    state.on_navigation(summary(row("a", state="waiting", x=1.0, y=1.0, tolerance=0.2),
+                                row("b", x=1.0, y=-1.0, tolerance=math.inf), row("c", goal_id="g2")))  # fmt: skip
+    state.on_plan(path("a", [(0.0, 0.0), (math.nan, 1.0), (1.0, 1.0)]))
+    state.on_plan(path("b", [(2.0, 0.0), (1.0, -1.0)], goal_id="old"))  # another goal's path
+    state.on_nav_result(result("c", goal_id="g2"))  # ended: nothing to draw
+    goals = state.goals_under_way()
+    assert set(goals) == {"a", "b"}
+    assert goals["a"].path == [(0.0, 0.0), (1.0, 1.0)] and goals["a"].state == "waiting"
+    assert goals["a"].tolerance == 0.2 and goals["a"].yaw is None
+    assert goals["b"].path == [] and goals["b"].tolerance == 0.0
+
+    # what is left of a path: from the robot on it, from the path's nearest point off it
+    bend = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0)]
+    assert snapshot.path_ahead(bend, 0.5, 0.1) == [(0.5, 0.1), (1.0, 0.0), (1.0, 1.0)]
+    assert snapshot.path_ahead(bend, 1.05, 0.6) == [(1.05, 0.6), (1.0, 1.0)]
+    assert snapshot.path_ahead(bend, 0.5, -0.5) == [(0.5, 0.0), (1.0, 0.0), (1.0, 1.0)]
+    assert snapshot.path_ahead([(0.0, 0.0)], 0.0, 0.0) == []
+
+    footprint = (0.038, -0.07, 0.038, 0.07, -0.102, 0.07, -0.102, -0.07)
+    robots = [RobotState(ns, ns, "burger", footprint, color_index(ns), True, True, 0.0, x, y, 0.0)
+              for ns, x, y in [("a", 0.0, 0.0), ("b", 2.0, 0.0)]]  # fmt: skip
+    img, tf = snapshot.render(None, robots, 600, 0.0, goals)
+    ring = snapshot.NAV_COLORS["waiting"]
+    r_px = math.hypot(0.102, 0.07) * tf.scale + 4
+    ax, ay = tf.to_pixel(0.0, 0.0)
+    assert colour_count(img, (ax + r_px, ay), 3, ring, 30) >= 3  # round the robot that waits
+    bx, by = tf.to_pixel(2.0, 0.0)
+    assert colour_count(img, (bx, by), 2 * r_px, ring, 30) == 0  # none round the one that drives
+    mark = snapshot.goal_rgb(color_index("a"))
+    assert colour_count(img, tf.to_pixel(0.5, 0.5), 3, mark, 30) >= 3  # a's path, halfway
+    assert colour_count(img, tf.to_pixel(1.0, 1.0), 4, mark) >= 6  # and its goal's cross
+    assert colour_count(img, tf.to_pixel(1.0, -1.0), 4, snapshot.goal_rgb(color_index("b"))) >= 6
 
 
 # -- the page, against a real daemon ----------------------------------------------------------------

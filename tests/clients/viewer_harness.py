@@ -55,9 +55,12 @@ def start_viewer(daemon: Daemon, *args: str) -> Viewer:
     return Viewer(proc, line.split()[1])
 
 
-def colour_count(img: Image.Image, centre: tuple[float, float], half: float, rgb: tuple[int, ...]) -> int:
-    """Pixels within ``half`` px of ``centre`` that are ``rgb`` (within 8 per channel)."""
+def colour_count(
+    img: Image.Image, centre: tuple[float, float], half: float, rgb: tuple[int, ...], within: int = 8
+) -> int:
+    """Pixels within ``half`` px of ``centre`` that are ``rgb`` (within ``within`` per channel:
+    a thin line resampled down comes out a little off its colour)."""
     a = np.asarray(img.convert("RGB"), dtype=np.int16)
     x0, y0 = max(0, round(centre[0] - half)), max(0, round(centre[1] - half))
     box = a[y0 : round(centre[1] + half) + 1, x0 : round(centre[0] + half) + 1]
-    return int(np.sum(np.all(np.abs(box - np.asarray(rgb[:3])) <= 8, axis=-1)))
+    return int(np.sum(np.all(np.abs(box - np.asarray(rgb[:3])) <= within, axis=-1)))
