@@ -236,7 +236,14 @@ def _compose_value(text: str, shell: dict[str, str]) -> str:
     return re.sub(r"\$\{(\w+):-([^}]*)\}", lambda m: shell.get(m.group(1)) or m.group(2), text)
 
 
-@pytest.mark.parametrize("shell", [{}, {"SIMD_ROS2": "1"}])
+@pytest.mark.parametrize(
+    "shell",
+    [
+        {},
+        {"SIMD_ROS2": "1"},
+        {"SIMD_ROS2": "1", "SIMD_ROS_TF": "namespaced", "SIMD_ROS_LOCALIZATION": "1", "SIMD_NO_NAV": "1"},
+    ],
+)
 def test_the_fleet_compose_file_adds_ros2_to_both_daemons_when_asked(shell: dict[str, str]) -> None:
     """docker/compose.fleet.yaml through the image's entrypoint (the flags simd gets from the
     daemons' command and variables): without SIMD_ROS2 as before, with it --ros2 on both
@@ -257,3 +264,7 @@ def test_the_fleet_compose_file_adds_ros2_to_both_daemons_when_asked(shell: dict
         assert args.ros2 == bool(shell)
         if args.ros2:
             assert (args.ros_router, args.ros_mode, args.ros_domain_id) == ("tcp/router:7447", "client", 0)
+        # Nav2's multi-robot layout when asked for, else the defaults
+        assert args.ros_tf == shell.get("SIMD_ROS_TF", "global")
+        assert args.ros_localization == ("SIMD_ROS_LOCALIZATION" in shell)
+        assert args.no_nav == ("SIMD_NO_NAV" in shell)
