@@ -23,6 +23,9 @@ import zenoh.ext
 #: what fleet-record can take from ROS, by the topic's last name (per robot) or whole name
 ROBOT_TOPICS = ("odom", "scan", "imu", "joint_states")
 FLEET_TOPICS = ("tf", "tf_static", "clock")
+#: the transform topics, recorded both as the fleet's (``/tf``) and as each robot's own
+#: (``/<ns>/tf``, what ``simd --ros-tf namespaced`` publishes: Nav2's multi-robot layout)
+TF_TOPICS = ("tf", "tf_static")
 
 #: topic, ROS type, sim-time stamp (ns), CDR payload, latched
 Sink = Callable[[str, str, int, bytes, bool], None]
@@ -84,7 +87,7 @@ class RosSource:
             if pub.key in self._keys:
                 return
             self._keys.add(pub.key)
-        latched = pub.topic == "/tf_static"
+        latched = pub.topic.rsplit("/", 1)[-1] == "tf_static"
 
         def on_sample(s: zenoh.Sample) -> None:
             data = s.payload.to_bytes()
@@ -132,7 +135,8 @@ def ros_session(router: str, timeout: float) -> zenoh.Session:
 
 def topic_filter(topics: set[str], robots: set[str] | None) -> Callable[[str], bool]:
     """Which ROS topic names to record: ``/<ns>/<t>`` for the robot topics asked (of the
-    robots asked), ``/tf``, ``/tf_static``, ``/clock`` when asked."""
+    robots asked), ``/tf``, ``/tf_static``, ``/clock`` when asked, and ``/<ns>/tf`` and
+    ``/<ns>/tf_static`` (of the robots asked) with ``tf`` and ``tf_static``."""
 
     def wanted(topic: str) -> bool:
         parts = topic.strip("/").split("/")
@@ -140,7 +144,8 @@ def topic_filter(topics: set[str], robots: set[str] | None) -> Callable[[str], b
             return parts[0] in topics and parts[0] in FLEET_TOPICS
         if len(parts) == 2:
             ns, name = parts
-            return name in topics and name in ROBOT_TOPICS and (robots is None or ns in robots)
+            per_robot = name in ROBOT_TOPICS or name in TF_TOPICS
+            return name in topics and per_robot and (robots is None or ns in robots)
         return False
 
     return wanted

@@ -85,6 +85,47 @@ def test_ros_topics_recorded_as_they_came(ros_factory: Callable[..., RosDomain],
     assert {t.child_frame_id for t in msgs["/tf"][0].transforms} == {"TB3_1/base_footprint", "TB3_2/base_footprint"}
 
 
+def test_each_robots_own_transforms_recorded_in_nav2s_layout(
+    ros_factory: Callable[..., RosDomain], tmp_path: Path
+) -> None:
+    """With ``--ros-tf namespaced`` the transforms are each robot's (``/<ns>/tf``): recorded for
+    the robots asked, the fixed frames sent before the recorder started too."""
+    ros = ros_factory("--lockstep", "--ros-tf", "namespaced")
+    c = ros.daemon.client()
+    c.spawn("burger_1", -2.0, -0.5, namespace="TB3_1")
+    c.spawn("waffle_2", 0.5, -2.0, model="waffle", namespace="TB3_2")
+    ros.tool.wait_graph(lambda g: ("/TB3_1/tf_static", "MP") in {(e.topic, e.kind) for e in g})
+    bag = tmp_path / "ros_tf"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "clients.record.cli", "--source", "ros", "--ros-router", ros.router, "-o", str(bag),
+         "--robots", "TB3_1", "--topics", "odom,tf,tf_static"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+    wait_subscribed(ros.router, [key(0, "/TB3_1/odom", "nav_msgs/msg/Odometry")], proc)
+    tf1 = ros.tool.subscribe("/TB3_1/tf", "tf2_msgs/msg/TFMessage")  # another peer of the router, as a fence
+    reply = c.step(30, observe=["TB3_1"])
+    end = reply.clock
+    wait_for(tf1, lambda m: (m[0].transforms[0].header.stamp.sec, m[0].transforms[0].header.stamp.nanosec)
+             == (end.sec, end.nanosec))  # fmt: skip
+    time.sleep(0.2)  # the recorder is a peer of the same router: the last tick reached it too by now
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "fleet-record: wrote" in out, err
+    msgs: dict[str, list[Any]] = {}
+    with AnyReader([bag]) as r:
+        for conn, _, raw in r.messages():
+            msgs.setdefault(conn.topic, []).append(r.deserialize(raw, conn.msgtype))
+    assert set(msgs) == {"/TB3_1/odom", "/TB3_1/tf", "/TB3_1/tf_static"}  # TB3_2's are not asked for
+    assert len(msgs["/TB3_1/tf"]) == 30
+    assert {(t.header.frame_id, t.child_frame_id) for t in msgs["/TB3_1/tf"][-1].transforms} == {
+        ("odom", "base_footprint")
+    }
+    static = {(t.header.frame_id, t.child_frame_id) for m in msgs["/TB3_1/tf_static"] for t in m.transforms}
+    assert ("base_link", "base_scan") in static  # sent before the recorder started
+
+
 @pytest.mark.parametrize(
     ("args", "code", "text"),
     [(["--topics", "imu"], 2, "need --source ros"), (["--source", "ros", "--ros-domain-id", "999"], 2, "0..232")],
