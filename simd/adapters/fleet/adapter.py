@@ -293,6 +293,12 @@ class FleetAdapter:
     def take_commands(self) -> Mapping[str, tuple[float, float]]:
         return self.commands.take()
 
+    def drain_commands(self, most: int) -> bool:
+        """Decode up to ``most`` waiting cmd_vel samples into the table :meth:`take_commands`
+        hands out (the engine does this in chunks, serving requests between them); whether more
+        may wait."""
+        return self.commands.poll(most)
+
     def dropped_commands(self) -> int:
         return self.commands.dropped
 
