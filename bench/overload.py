@@ -24,6 +24,7 @@ Writes ``overload.json`` (``--out``).
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import json
 import os
@@ -191,7 +192,8 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
             spawned = sum(ok for _, ok, _ in results)
             out["spawned"], out["spawn_s"] = spawned, round(spawn_s, 1)
             if spawned != n:
-                raise RuntimeError(f"spawned {spawned} of {n}")
+                why = collections.Counter(err for _, ok, err in results if not ok).most_common(2)
+                raise RuntimeError(f"spawned {spawned} of {n} (the refusals: {why})")
             sub = Subscriber(daemon.endpoint, "r0", tmp / f"subscriber-{n}.log", "fleet")
             stack.callback(sub.stop)
             sub.wait_ready(60.0)

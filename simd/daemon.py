@@ -133,8 +133,10 @@ def build_daemon(flags: CheckedFlags, teardown: contextlib.ExitStack) -> Daemon:
     if saved is not None and saved.goals:
         _resume_goals(sim, navigator, saved.goals)
     from simd.engine import Engine
+    from simd.engine.heap import HeapKeeper
 
-    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver, navigator=navigator)
+    engine = Engine(sim, rtf=args.rtf, lockstep=args.lockstep, paused=args.paused, saver=saver, navigator=navigator,
+                    heap=HeapKeeper())  # fmt: skip
     _attach_adapters(flags, engine, fleet, ros, teardown)
     return Daemon(flags, engine, fleet, ros)
 

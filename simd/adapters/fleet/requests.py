@@ -75,6 +75,13 @@ class Pending:
         finally:
             self.query.drop()
 
+    def ok_encoded(self, payload: bytes) -> None:
+        """Reply with a message already encoded in this query's format."""
+        try:
+            self.query.reply(self.key, payload, encoding=media_type(self.fmt))
+        finally:
+            self.query.drop()
+
     def skip(self) -> None:
         """Leave the query to another daemon: no reply from this one."""
         self.query.drop()

@@ -1,0 +1,66 @@
+"""The robot list from byte templates is the MessagePack of the same ``RobotList``, to the byte,
+whatever the fleet's size, names, models and numbers, and however it changes between lists."""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+import pytest
+
+from protocol.control import Pose2D, RobotList, RobotRecord
+from protocol.keys import Keys
+from protocol.messages import Time
+from simd.core.models import MODELS
+from simd.core.snapshot import RobotState
+from simd.wire.convert import robot_record
+from simd.wire.list_codec import RobotListEncoder
+
+KEYS = Keys("fleet")
+
+
+def _records(n: int, start: int = 0) -> list[RobotRecord]:
+    models = list(MODELS.values())
+    out = []
+    for i in range(start, start + n):
+        name = f"r{i}" + "x" * (i % 7)  # names of every length: records of different sizes
+        state = RobotState(name, f"ns/{name}", models[i % len(models)], 0.0, 0.0, 0.0, 0.0, 0.0, (i, -i, 0.5))
+        out.append(robot_record(state, KEYS, "simd-a"))
+    return out
+
+
+def _expected(time: float, records: list[RobotRecord], columns: list[np.ndarray]) -> bytes:
+    robots = [
+        msgspec.structs.replace(r, pose=Pose2D(x=x, y=y, yaw=yaw), linear_velocity=v, angular_velocity=w)
+        for r, x, y, yaw, v, w in zip(records, *(c.tolist() for c in columns), strict=True)
+    ]
+    return msgspec.msgpack.encode(RobotList(stamp=Time.from_seconds(time), robots=robots))
+
+
+@pytest.mark.parametrize("n", [0, 1, 15, 16, 300, 70_000])
+def test_the_list_is_byte_identical_to_encoding_the_struct(n: int) -> None:
+    rng = np.random.default_rng(n)
+    records = _records(min(n, 300))
+    records = [records[i % len(records)] for i in range(n)] if records else []  # (70 000: records repeat)
+    columns = [rng.normal(0, 50, n) for _ in range(5)]
+    columns[0][:1] = [0.0] if n else []  # zeros, negatives, large and small numbers alike
+    enc = RobotListEncoder()
+    got = enc.encode(12.345, records, *columns)
+    assert got == _expected(12.345, records, columns)
+    assert msgspec.msgpack.decode(got, type=RobotList).robots[:3] == msgspec.msgpack.decode(
+        _expected(12.345, records, columns), type=RobotList
+    ).robots[:3]
+
+
+def test_a_fleet_that_changes_between_lists_is_laid_out_again() -> None:
+    enc = RobotListEncoder()
+    first = _records(40)
+    rng = np.random.default_rng(1)
+    for records in (first, first[5:], [*first[5:], *_records(3, start=100)], first[5:]):
+        columns = [rng.normal(0, 5, len(records)) for _ in range(5)]
+        for t in (1.0, 2.0):  # the same layout twice: the second list reuses it
+            assert enc.encode(t, records, *columns) == _expected(t, records, columns)
+
+
+def test_columns_of_another_length_are_refused() -> None:
+    with pytest.raises(ValueError, match="2 records"):
+        RobotListEncoder().encode(0.0, _records(2), *([np.zeros(3)] * 5))
