@@ -159,7 +159,7 @@ def observe_packed(
     # stacking them, which a step of one robot notices (the same values; one row is already
     # in its order)
     if n == 1 and everyone:
-        odom = np.concatenate(columns).reshape(1, 6)
+        odom = np.array([[c.item() for c in columns]])
     else:
         table_odom = np.concatenate(columns).reshape(6, n).T
         odom = np.ascontiguousarray(table_odom if everyone else table_odom[rows])
