@@ -386,8 +386,11 @@ class Simulation:
 
     # -- the tick -------------------------------------------------------------------------
 
-    def step(self) -> TickSnapshot:
-        """Advance one fixed tick; return odometry for all robots and the scans due."""
+    def step(self, scans_wanted: bool = False) -> TickSnapshot:
+        """Advance one fixed tick; return odometry for all robots and the scans due.
+        ``scans_wanted``: the caller reads this tick's scans at once (a step's last tick, whose
+        reply carries them): they are cast on this thread, not handed to the lidar's and waited
+        for (the same scans, bit for bit)."""
         cfg = self.config
         dt = cfg.dt
         t = self.robots
@@ -412,6 +415,10 @@ class Simulation:
         if len(due) == 0:
             scans = self._no_scans
         elif self._lidar is None:
+            scans = self._scan(due, *self._with_ghosts(), t.lidar_off)
+        elif scans_wanted:  # waited for at once: no hand-over, no thread to wake (~5 % of a fleet
+            # env's step at 1 000 robots); the lidar's earlier jobs first, which draw noise before
+            self._finish_scans()
             scans = self._scan(due, *self._with_ghosts(), t.lidar_off)
         else:  # the columns are replaced, never written, from tick to tick: safe to read there
             scans = self._lidar.submit(self._scan, due, *self._with_ghosts(), t.lidar_off)

@@ -309,11 +309,12 @@ class Engine(ServedHere):
             cmds.update(a.take_commands())
         return cmds
 
-    def tick(self, publish: bool = True, *, held: bool = False) -> TickSnapshot:
+    def tick(self, publish: bool = True, *, held: bool = False, last: bool = False) -> TickSnapshot:
         """Apply the newest commands, advance one tick, hand the snapshot to every adapter
         (unless a step asked for no publishing: then no adapter hears of the tick). ``held``:
         the running step's commands were written at the tick before this one and nothing was
-        served since (the ticks of one slice after its first)."""
+        served since (the ticks of one slice after its first). ``last``: a step's last tick,
+        whose scans its reply carries at once."""
         sim = self.sim
         nav = self.navigator
         commands = self._gather_commands() if self.adapters else self._pending_commands
@@ -334,7 +335,7 @@ class Engine(ServedHere):
         if nav is not None:
             nav.step(sim.robots, sim.tick, sim.time)
             nav.apply(sim.robots, sim.command_rows)
-        snap = sim.step()
+        snap = sim.step(scans_wanted=last)
         self._scans.record(snap)
         self._last_snap = snap
         if not self.paused:  # stepped time has no factor; a resume measures it anew
@@ -469,10 +470,10 @@ class Engine(ServedHere):
         job = self._steps[0]
         wall, stopped = self._wall, self.stop_event.is_set
         end = wall() + SLICE_SECONDS
-        publish, ticks = job.request.publish, job.request.ticks
+        publish, ticks, observed = job.request.publish, job.request.ticks, bool(job.request.observe)
         held = False  # the first tick of a slice writes the step's commands (requests came between)
         while job.ran < ticks and not stopped():
-            self.tick(publish, held=held)
+            self.tick(publish, held=held, last=observed and job.ran == ticks - 1)
             held = True
             job.ran += 1
             if wall() >= end:
