@@ -684,12 +684,15 @@ class ObservedFleet:
 def observed_arrays(packed: PackedObservations) -> ObservedFleet:
     """Read ``StepReply.packed`` (views on the reply's bytes: no copy, read-only)."""
     n = len(packed.names)
-    return ObservedFleet(
+    return ObservedFleet(  # (the dtypes as objects, given by position: a third of the cost)
         names=packed.names,
-        odom=np.frombuffer(packed.odom, dtype="<f8").reshape(n, 6),
-        scan_time=np.frombuffer(packed.scan_time, dtype="<f8"),
-        ranges=np.frombuffer(packed.ranges, dtype="<f4").reshape(n, packed.samples),
+        odom=np.frombuffer(packed.odom, _F8).reshape(n, 6),
+        scan_time=np.frombuffer(packed.scan_time, _F8),
+        ranges=np.frombuffer(packed.ranges, _F4).reshape(n, packed.samples),
     )
+
+
+_F8, _F4 = np.dtype("<f8"), np.dtype("<f4")
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float, interval: float = 0.02) -> bool:

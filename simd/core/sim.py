@@ -89,6 +89,9 @@ class Simulation:
         self._due_by_tick: list[I64] = []
         self._lidar = ThreadPoolExecutor(1, "lidar") if self.config.lidar_thread else None
         self._last_scans: Future[F32] | None = None
+        #: the scans of a tick on which no lidar fires (most ticks), handed out tick after tick
+        self._no_scans = np.zeros((0, self.config.lidar.samples), dtype=np.float32)
+        self._no_scans.flags.writeable = False
         #: robots simulated elsewhere (another daemon of a shared fleet), seen and felt here
         self._ghosts = Ghosts(self.physics, world.bounds)
 
@@ -383,8 +386,11 @@ class Simulation:
 
     # -- the tick -------------------------------------------------------------------------
 
-    def step(self) -> TickSnapshot:
-        """Advance one fixed tick; return odometry for all robots and the scans due."""
+    def step(self, scans_wanted: bool = False) -> TickSnapshot:
+        """Advance one fixed tick; return odometry for all robots and the scans due.
+        ``scans_wanted``: the caller reads this tick's scans at once (a step's last tick, whose
+        reply carries them): they are cast on this thread, not handed to the lidar's and waited
+        for (the same scans, bit for bit)."""
         cfg = self.config
         dt = cfg.dt
         t = self.robots
@@ -407,8 +413,12 @@ class Simulation:
         due = self._due_rows(t)[self.tick % cfg.scan_every]
         scans: F32 | Future[F32]
         if len(due) == 0:
-            scans = np.zeros((0, cfg.lidar.samples), dtype=np.float32)
+            scans = self._no_scans
         elif self._lidar is None:
+            scans = self._scan(due, *self._with_ghosts(), t.lidar_off)
+        elif scans_wanted:  # waited for at once: no hand-over, no thread to wake (~5 % of a fleet
+            # env's step at 1 000 robots); the lidar's earlier jobs first, which draw noise before
+            self._finish_scans()
             scans = self._scan(due, *self._with_ghosts(), t.lidar_off)
         else:  # the columns are replaced, never written, from tick to tick: safe to read there
             scans = self._lidar.submit(self._scan, due, *self._with_ghosts(), t.lidar_off)

@@ -398,9 +398,12 @@ class Engine(ServedHere):
             cmds.update(a.take_commands())
         return cmds
 
-    def tick(self, publish: bool = True) -> TickSnapshot:
+    def tick(self, publish: bool = True, *, held: bool = False, last: bool = False) -> TickSnapshot:
         """Apply the newest commands, advance one tick, hand the snapshot to every adapter
-        (unless a step asked for no publishing: then no adapter hears of the tick)."""
+        (unless a step asked for no publishing: then no adapter hears of the tick). ``held``:
+        the running step's commands were written at the tick before this one and nothing was
+        served since (the ticks of one slice after its first). ``last``: a step's last tick,
+        whose scans its reply carries at once."""
         sim = self.sim
         nav = self.navigator
         commands = self._gather_commands() if self.adapters else self._pending_commands
@@ -413,12 +416,15 @@ class Engine(ServedHere):
             ghosts = self.ghost_source.take(self._board.own_robots(self.sim), stepping=bool(self._steps))
             if ghosts is not None:
                 sim.set_ghosts(ghosts)
-        if self._steps:  # a step's own commands hold for all of its ticks
+        # a step's own commands hold for all of its ticks: written again unless they are still
+        # there (nothing commanded since, no watchdog counting the ticks since: a local
+        # fleet's every tick but a slice's first)
+        if self._steps and (not held or commands or nav is not None or sim.config.cmd_timeout > 0):
             self._steps[0].apply(sim, nav)
         if nav is not None:
             nav.step(sim.robots, sim.tick, sim.time)
             nav.apply(sim.robots, sim.command_rows)
-        snap = sim.step()
+        snap = sim.step(scans_wanted=last)
         self._scans.record(snap)
         self._last_snap = snap
         if not self.paused:  # stepped time has no factor; a resume measures it anew
@@ -553,12 +559,15 @@ class Engine(ServedHere):
     def _run_slice(self) -> None:
         """Run the current step for about SLICE_SECONDS (at least one tick)."""
         job = self._steps[0]
-        end = self._wall() + SLICE_SECONDS
-        publish = job.request.publish
-        while not job.done and not self.stop_event.is_set():
-            self.tick(publish)
+        wall, stopped = self._wall, self.stop_event.is_set
+        end = wall() + SLICE_SECONDS
+        publish, ticks, observed = job.request.publish, job.request.ticks, bool(job.request.observe)
+        held = False  # the first tick of a slice writes the step's commands (requests came between)
+        while job.ran < ticks and not stopped():
+            self.tick(publish, held=held, last=observed and job.ran == ticks - 1)
+            held = True
             job.ran += 1
-            if self._wall() >= end:
+            if wall() >= end:
                 break
         if job.done:
             self._steps.popleft()
@@ -571,7 +580,13 @@ class Engine(ServedHere):
             _send(job.reply, self._step_result(job, cancelled=True))
 
     def _step_result(self, job: StepJob, cancelled: bool) -> StepResult:
-        return step_result(self.sim, job, self.clock(measured_cost=False), cancelled, self._last_snap, self._scans)
+        return step_result(self.sim, job, self._step_clock(), cancelled, self._last_snap, self._scans)
+
+    def _step_clock(self) -> Clock:
+        """The clock of a step's reply (:meth:`clock` without the measured cost)."""
+        if self.paused:  # every step's, whose reply comes before time may run again
+            return self._board.stood_still_clock(self.sim, self._time, self.lockstep, self._dropped())
+        return self.clock(measured_cost=False)
 
     def _event(self, event: Event) -> None:
         for a in self.adapters:

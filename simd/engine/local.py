@@ -199,7 +199,7 @@ class LocalFleet:
             raise ValueError("a local fleet gives its observations packed: step(..., packed=True)")
         if commands is not None and not cmd_vel:  # a learner's every step: the arrays as they are
             names, values = commands
-            twist = np.array(values, dtype=np.float64)
+            twist = np.array(values, _F8)
             if twist.shape != (len(names), 2):
                 raise ValueError(f"commands: values must have shape ({len(names)}, 2), got {twist.shape}")
             req = StepRequest(ticks=ticks, observe=watched, publish=False, packed=packed)
@@ -245,4 +245,4 @@ _F8, _F4 = np.dtype("<f8"), np.dtype("<f4")
 
 
 def _bytes_of(array: npt.NDArray[Any], dtype: np.dtype[Any]) -> memoryview:
-    return np.ascontiguousarray(array, dtype=dtype).data.toreadonly().cast("B")
+    return np.ascontiguousarray(array, dtype).data.toreadonly().cast("B")

@@ -88,6 +88,12 @@ class LatestScans:
         time as ``scan_time[k]``; NaN rows for robots that have not scanned yet.
         ``everyone``: ``rows`` is every row of the table, in order (k is the row)."""
         window = self._window(table)
+        if window is not None and everyone:
+            for snap in window:  # every robot scanned at once (few robots, one lidar batch a
+                if len(snap.scan_index) == len(rows):  # period): that tick's rows are all of
+                    scan_time = np.empty(len(rows))  # the table, in order
+                    scan_time.fill(snap.time)
+                    return scan_time, snap.scans
         if window is not None:
             # every robot scanned once in the window: each row is written below, unless a
             # robot is named twice (then the general way below)
@@ -150,8 +156,12 @@ def observe_packed(
     # (one row of a one-row table is all of it: no comparison, which costs more than the rest)
     everyone = len(rows) == n and (n == 1 or bool(np.array_equal(rows, np.arange(n))))
     # the columns joined in one call, (n, 6) seen through a transpose: fewer numpy calls than
-    # stacking them, which a step of one robot notices (the same values)
-    table_odom = np.concatenate(columns).reshape(6, n).T
-    odom = np.ascontiguousarray(table_odom if everyone else table_odom[rows])
+    # stacking them, which a step of one robot notices (the same values; one row is already
+    # in its order)
+    if n == 1 and everyone:
+        odom = np.array([[c.item() for c in columns]])
+    else:
+        table_odom = np.concatenate(columns).reshape(6, n).T
+        odom = np.ascontiguousarray(table_odom if everyone else table_odom[rows])
     scan_time, ranges = scans.fill(table, rows, samples, everyone)
     return ObservedArrays(names, odom, scan_time, ranges)

@@ -106,6 +106,27 @@ class StatusBoard:
             self._models = (t.generation, [r.model.name for r in t.robots])
         return OwnRobots(sim.tick, t.namespaces, self._models[1], t.x, t.y, t.yaw)
 
+    def stood_still_clock(self, sim: Simulation, keeper: Timekeeper, lockstep: bool, dropped_commands: int) -> Clock:
+        """The clock of a step's reply while time stands still between steps (paused, in
+        lockstep) and nothing measured is in it: what ``status(sim, keeper, True, lockstep,
+        False).clock(now, dropped_commands)`` gives at any ``now``, without the status, which a
+        learner's step of one robot would notice (~3 µs of ~200)."""
+        return Clock(
+            clock=Time.from_seconds(sim.time),
+            tick=sim.tick,
+            dt=sim.config.dt,
+            paused=True,
+            lockstep=lockstep,
+            real_time_factor=0.0,
+            target_real_time_factor=keeper.rtf,
+            robots=len(sim),
+            dropped_commands=dropped_commands,
+            behind_s=0.0,
+            falling_behind=False,
+            tick_s=0.0,
+            capacity_robots=0,
+        )
+
     def status(self, sim: Simulation, keeper: Timekeeper, paused: bool, lockstep: bool, measured_cost: bool) -> Status:
         t = sim.robots
         if self._of != t.generation:

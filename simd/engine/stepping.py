@@ -9,6 +9,8 @@ observations map to the robot table's rows; when it runs is the engine's busines
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -87,19 +89,31 @@ class RowsMemo:
     """The table rows of the name list a learner sends step after step: a thousand names
     looked up again cost ~0.1 ms a step, comparing the list with the last one ~0.01 ms. Valid
     while the table's generation is the one the rows were found in (a spawn or delete
-    changes it)."""
+    changes it). The rows found are kept as an array too, and as a slice where they are
+    consecutive: a step of one robot notices each numpy call it makes (both read only, so the
+    jobs of many steps may hold them)."""
 
     def __init__(self, lookup: Callable[[RobotTable, list[str]], list[int | None]]) -> None:
         self._lookup = lookup
         self._of: int | None = None
         self._names: list[str] = []
         self._rows: list[int | None] = []
+        self._array: I64 = np.zeros(0, np.int64)
+        self._span: slice | I64 = self._array
 
     def rows(self, table: RobotTable, names: list[str]) -> list[int | None]:
         """The row of each name (None where no robot has it), as ``lookup`` finds them."""
         if self._of != table.generation or names != self._names:
             self._rows, self._names, self._of = self._lookup(table, names), list(names), table.generation
+            self._array = np.array([r for r in self._rows if r is not None], dtype=np.int64)
+            self._array.flags.writeable = False
+            self._span = _span(self._array)
         return self._rows
+
+    def found(self) -> tuple[I64, slice | I64]:
+        """The rows of the names :meth:`rows` was last asked (those found), as an array and as
+        :func:`_span` gives them."""
+        return self._array, self._span
 
 
 def command_rows(table: RobotTable, names: list[str]) -> list[int | None]:
@@ -127,20 +141,22 @@ class StepPlanner:
         if not 1 <= req.ticks <= MAX_STEP_TICKS:
             raise FleetError(ErrorCode.INVALID_VALUE, f"ticks must be in 1..{MAX_STEP_TICKS}, got {req.ticks}", "ticks")
         t = sim.robots
-        names, rows, v, w = self._commands(t, req, given)
+        names, v, w = self._commands(t, req, given)
         watched = self._observed_rows.rows(t, req.observe)
         if None in watched:
             ns = req.observe[watched.index(None)]
             raise FleetError(ErrorCode.NOT_FOUND, f"no robot called {ns!r} to observe", "observe")
-        job = StepJob(req, reply, names, v, w, rows_of=t.generation, rows=rows, here=np.ones(len(rows), dtype=bool))
-        job.watched, job.watched_of = np.array(watched, dtype=np.int64), t.generation
-        return job
+        rows, span = self._commanded_rows.found()
+        return StepJob(
+            req, reply, names, v, w, rows_of=t.generation, rows=rows, here=_all_here(len(rows)),
+            watched=self._observed_rows.found()[0], watched_of=t.generation, span=span,
+        )  # fmt: skip
 
     def _commands(
         self, table: RobotTable, req: StepRequest, given: tuple[list[str], F64] | None
-    ) -> tuple[list[str], I64, F64, F64]:
-        """A step's commands (``given``, else the request's), checked, as namespaces, their
-        table rows and (v, w) columns."""
+    ) -> tuple[list[str], F64, F64]:
+        """A step's commands (``given``, else the request's), checked, as namespaces and (v,
+        w) columns; their table rows are the commanded memo's (``found()``)."""
         if given is not None:
             (names, values), field = given, "commands"
         elif req.commands is None:
@@ -160,7 +176,7 @@ class StepPlanner:
             values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
             field = "commands"
         values = values.reshape(len(names), 2)
-        if not np.isfinite(values).all():
+        if not _all_finite(values):
             finite = np.isfinite(values).all(axis=1)
             ns = names[int(np.argmin(finite))]
             raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
@@ -168,7 +184,26 @@ class StepPlanner:
         if None in rows:
             ns = names[rows.index(None)]
             raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", field)
-        return names, np.array(rows, dtype=np.int64), values[:, 0].copy(), values[:, 1].copy()
+        v, w = values.T.copy()  # (one copy: two contiguous rows)
+        return names, v, w
+
+
+#: up to this many values are checked in Python: fewer than numpy's two calls cost
+FEW_VALUES = 32
+
+
+def _all_finite(values: F64) -> bool:
+    if values.size <= FEW_VALUES:
+        return all(map(math.isfinite, values.flat))
+    return bool(np.isfinite(values).all())
+
+
+@functools.lru_cache(maxsize=8)
+def _all_here(n: int) -> npt.NDArray[np.bool_]:
+    """``StepJob.here`` of a job whose robots are all in the world (read only, shared)."""
+    here = np.ones(n, dtype=bool)
+    here.flags.writeable = False
+    return here
 
 
 def step_result(

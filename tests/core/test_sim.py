@@ -68,6 +68,31 @@ def test_the_lidar_thread_gives_the_scans_of_the_simulation_thread_bit_for_bit()
     assert sum(a.size for a in threaded) > 90 * 12 + 4 * 360  # scans were taken
 
 
+@pytest.mark.parametrize("robots", [40, 5])
+def test_scans_wanted_at_once_are_the_lidar_threads_bit_for_bit(robots: int) -> None:
+    """A step's last tick casts its scans on the simulation's thread (its reply waits for
+    them); with the lidar's earlier jobs still queued (scans read only at the end), the noise
+    must still be drawn in tick order."""
+
+    def run(wanted_every: int) -> list[np.ndarray]:
+        sim = Simulation(load_world("empty"), SimConfig(seed=9, lidar_thread=wanted_every > 0))
+        for i in range(robots):  # a grid 1.5 m apart: each sees the others
+            sim.spawn(SpawnRequest(name=f"r{i}", x=1.5 * (i % 8), y=1.5 * (i // 8), yaw=0.3 * i))
+        snaps = []
+        for k in range(40):
+            sim.command_many({f"r{i}": (0.2, 0.5 * math.sin(k / 9 + i)) for i in range(robots)})
+            snaps.append(sim.step(scans_wanted=wanted_every > 0 and k % wanted_every == 0))
+            if k == 25:
+                sim.reset()
+        sim.close()
+        return [np.concatenate([s.x, s.yaw, s.scans.reshape(-1)]) for s in snaps]
+
+    inline = run(0)
+    for every in (1, 5):
+        assert all(np.array_equal(a, b) for a, b in zip(run(every), inline, strict=True))
+    assert sum(a.size for a in inline) > 40 * 2 * robots + robots * 360  # scans were taken
+
+
 def test_reset_replays_the_same_run() -> None:
     sim = fleet(seed=11)
     p1, s1 = rollout(sim, 60)

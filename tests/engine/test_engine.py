@@ -19,7 +19,17 @@ from simd.core.snapshot import TickSnapshot
 from simd.core.worldfile import load_world
 from simd.engine import Engine
 from simd.engine.pacing import RtfMeter
-from simd.engine.ports import Deleted, Event, Reply, Result, RobotList, Spawned, StepResult, WorldReset
+from simd.engine.ports import (
+    Deleted,
+    Event,
+    PlaceRequest,
+    Reply,
+    Result,
+    RobotList,
+    Spawned,
+    StepResult,
+    WorldReset,
+)
 
 
 class Recorder:
@@ -183,6 +193,63 @@ def test_a_steps_commands_hold_and_observations_come_back() -> None:
     assert isinstance(step, StepResult) and step.ticks_run == 30
     assert step.states["a"].linear_velocity == pytest.approx(0.2)  # 1 s: the 0.5 s watchdog did not stop it
     assert step.scans["a"].ranges.shape == (360,) and step.scans["a"].time <= 1.0
+
+
+@pytest.mark.parametrize("lockstep", [True, False], ids=["lockstep", "paused"])
+def test_a_steps_reply_carries_the_clock_the_engine_says_after_it(lockstep: bool) -> None:
+    """A step's clock is made without the engine's status (a learner's step of one robot
+    notices the status): it must be the status's clock without the measured cost, the
+    adapters' dropped commands counted."""
+    wall = FakeWall()
+    e, r = engine(lockstep=lockstep, clock=wall)
+    if not lockstep:
+        e.submit(control.ResumeRequest(), r.reply("resumed"))
+        e.serve_pending()
+        for _ in range(4):  # time runs for a while: a measured factor, a cost
+            wall.now += 1 / 30
+            e.tick()
+        e.submit(control.PauseRequest(), r.reply("paused"))
+    e.submit(control.SpawnRequest(name="a"), r.reply("spawned"))
+    e.serve_pending()
+    step = _packed_step(e, r, 7, ["a"])
+    wall.now += 5.0
+    assert step.clock == e._status(measured_cost=False).clock(wall.now, 7)
+    assert step.clock.tick == e.sim.tick and step.clock.robots == 1 and step.clock.dropped_commands == 7
+    assert step.clock.paused and step.clock.lockstep == lockstep
+
+
+def test_a_steps_commands_are_written_again_after_a_request_between_its_slices() -> None:
+    """Without a watchdog the commands a step wrote at a tick are still there at the next one
+    of the same slice, and are not written again; a request served between two slices may
+    change them (a placed robot stands still), so each slice writes them at its first tick."""
+    wall = FakeWall()
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, cmd_timeout=0))
+    e = Engine(sim, lockstep=True, clock=wall)
+    r = Recorder()
+    e.attach(r)
+    e.submit(control.SpawnRequest(name="a"), r.reply("spawned"))
+    e.serve_pending()
+
+    def tick_takes_5_ms(snapshot: TickSnapshot) -> None:
+        wall.now += 0.005
+        if snapshot.tick == 10:  # served after the slice that holds tick 10: the robot stops
+            e.submit(PlaceRequest("a", 1.0, 0.0, 0.0), r.reply("placed"))
+
+    r.on_tick = tick_takes_5_ms  # type: ignore[method-assign]
+    go = {"a": Twist(linear=Vector3(x=0.2))}
+    e.submit(control.StepRequest(ticks=30, cmd_vel=go, observe=["a"]), r.reply("step"))
+    e.serve_pending()
+    placed_at = None
+    while e._steps:
+        e._run_slice()
+        e.serve_pending()
+        if placed_at is None and any(k == "placed" for k, _ in r.log):
+            placed_at = e.sim.tick
+    step = dict(r.log)["step"]
+    assert placed_at is not None and 10 <= placed_at < 20
+    assert isinstance(step, StepResult) and step.ticks_run == 30
+    assert e.sim.robots.target_v[0] == 0.2 and step.states["a"].linear_velocity == pytest.approx(0.2)
+    assert step.states["a"].x > 1.0  # it drove on from where it was placed
 
 
 def _packed_step(e: Engine, r: Recorder, ticks: int, observe: list[str]) -> StepResult:
