@@ -398,3 +398,59 @@ def test_a_delete_is_announced_and_the_robot_leaves_the_next_tick() -> None:
     e.tick()
     last = r.log[-1][1]
     assert isinstance(last, TickSnapshot) and last.namespaces == ["b"]
+
+
+class Buffering(Recorder):
+    """An adapter whose commands arrive on the engine's (fake) wall clock, ``rate`` a second,
+    and wait in its buffer until the engine takes them, as the fleet adapter's cmd_vel ring
+    does; it counts the most the buffer ever held."""
+
+    def __init__(self, wall: FakeWall, rate: float) -> None:
+        super().__init__()
+        self.wall, self.rate = wall, rate
+        self.taken_at = wall.now
+        self.most_held = 0
+
+    def held(self) -> int:
+        return round((self.wall.now - self.taken_at) * self.rate)
+
+    def take_commands(self) -> Mapping[str, tuple[float, float]]:
+        self.most_held = max(self.most_held, self.held())
+        self.taken_at = self.wall.now
+        return super().take_commands()
+
+
+def test_a_paused_engine_keeps_draining_commands_while_requests_keep_coming() -> None:
+    """Paused, with a request every 50 ms (the soak's churn, lists and hostile queries), the
+    engine drained the adapters' commands only after 0.25 s without any request: never, so
+    5 s of 1 000 robots' cmd_vel waited in the ring, ~50 000 samples whose memory the daemon
+    kept (docs/robustness.md). It drains them once a tick period, as when running."""
+    wall = FakeWall()
+    sim = Simulation(load_world("empty"), SimConfig(noise=False))
+    e = Engine(sim, paused=True, clock=wall)
+    rate = 10_000.0  # 1 000 robots at 10 Hz
+    r = Buffering(wall, rate)
+    e.attach(r)
+    requests, done = 40, threading.Event()
+    answered: list[Result | FleetError] = []
+
+    def next_request(result: Result | FleetError) -> None:  # on the simulation thread
+        answered.append(result)
+        wall.now += 0.05
+        if len(answered) < requests:
+            e.submit(control.ListRequest(), next_request)
+        else:
+            done.set()
+
+    e.submit(control.ListRequest(), next_request)
+    thread = threading.Thread(target=e.run)
+    thread.start()
+    try:
+        assert done.wait(30)
+    finally:
+        e.stop()
+        thread.join(5)
+    assert not thread.is_alive() and all(isinstance(a, RobotList) for a in answered)
+    assert e.sim.tick == 0  # paused: no tick took the commands
+    most = max(r.most_held, r.held())  # (what still waits counts too)
+    assert most <= rate * (sim.config.dt + 0.05), most  # a tick period and a request's worth, not 2 s

@@ -221,9 +221,11 @@ class Publisher:
             if self._removed:  # deleted robots this tick (queued before the delete) still names
                 at = (snap.epoch, snap.tick)
                 self._removed = {ns: when for ns, when in self._removed.items() if at <= when}
-            self._gone = frozenset(self._removed)
+            gone = self._gone = frozenset(self._removed)
+            latest_scan = self._latest_scan
             for i, ns in enumerate(snap.scan_namespaces):
-                self._latest_scan[ns] = (snap, i)
+                if ns not in gone:  # a deleted robot's scan, kept, would keep the whole snapshot for ever
+                    latest_scan[ns] = (snap, i)
         if self.odom_wanted or self.odom_json_wanted:
             odom = self._odom.encode(
                 snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
