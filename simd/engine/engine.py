@@ -6,20 +6,20 @@ goes to every adapter (simd/engine/ports.py), which is all they see of the core.
 (or while paused) time advances only through steps (simd/engine/stepping.py), run in slices of
 about ``SLICE_SECONDS`` with the other requests served between them; a pause, resume or reset
 cancels what is left. Pacing and load: simd/engine/pacing.py and capacity.py. After every tick and
-request the loop publishes its status (simd/engine/status.py), from which the clock and the robots
-are answered on other threads; it never blocks in an adapter without room: it serves requests."""
+request the loop publishes its status (simd/engine/status.py), from which the clock, the robots
+and a pause are answered on other threads (simd/engine/at_once.py); the adapters' commands are
+drained in chunks between requests (simd/engine/intake.py); it never blocks in an adapter without
+room: it serves requests."""
 
 from __future__ import annotations
 
 import collections
-import dataclasses
 import logging
 import math
 import queue
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from protocol.control import (
@@ -39,10 +39,12 @@ from protocol.errors import ErrorCode, FleetError
 from protocol.navigation import CancelRequest, NavigateRequest, NavigationRequest, NavigationStateRequest
 from simd.core.sim import Simulation
 from simd.core.snapshot import TickSnapshot
+from simd.engine.at_once import AnsweredAtOnce, Call, ignore
 from simd.engine.capacity import limit_refusal
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
 from simd.engine.heap import HeapKeeper
 from simd.engine.here import ServedHere
+from simd.engine.intake import CommandIntake
 from simd.engine.navigation_requests import NavigationRequests
 from simd.engine.observe import LatestScans
 from simd.engine.pacing import Timekeeper
@@ -75,22 +77,10 @@ CLOCK_EVERY = 3
 SLICE_SECONDS = 0.02
 #: The longest wait for an adapter's room (it says it has room through :meth:`Engine.wake`).
 ROOM_POLL_S = 0.05
-#: cmd_vel samples an adapter decodes at a time before the requests that came meanwhile are
-#: served (8 000 robots driven at 10 Hz send 80 000 a second: ~2 us each, more under load).
-DRAIN_CHUNK = 1000
-#: Chunks decoded before a tick at most (the tick takes the rest): commands arriving as fast as
-#: they are decoded never hold a tick back (the fleet adapter's ring holds 65 536).
-DRAIN_CHUNKS = 64
 _WAKE = "wake"  # what Engine.wake puts in the inbox
 
 
-@dataclass
-class _Call:
-    request: Request | NavigationRequest | PlaceRequest
-    reply: Reply
-
-
-class Engine(ServedHere):
+class Engine(CommandIntake, AnsweredAtOnce, ServedHere):
     """Runs a :class:`Simulation` for its adapters; see the module docstring."""
 
     def __init__(
@@ -118,7 +108,7 @@ class Engine(ServedHere):
         self.adapters: list[Adapter] = []
         self.stop_event = threading.Event()
         self._wall = clock
-        self._inbox: queue.Queue[_Call | str | None] = queue.Queue(MAX_PENDING_REQUESTS)
+        self._inbox: queue.Queue[Call | str | None] = queue.Queue(MAX_PENDING_REQUESTS)
         self._waiting_for_room = False
         self._steps: collections.deque[StepJob] = collections.deque()
         self._planner = StepPlanner()
@@ -130,13 +120,6 @@ class Engine(ServedHere):
         self._pacer = self._time.pacer
         self._board = StatusBoard()
         self._heap = heap
-        # A pause is answered at once, on the query's thread (answer_at_once): what it says and
-        # the ticks the loop still starts agree through this lock. The loop starts no tick while
-        # a pause is asked and not yet served; ``_ticking``: a tick has started and its status is
-        # not known yet (the pause's reply names that tick as the last).
-        self._gate = threading.Lock()
-        self._pauses_asked = 0
-        self._ticking = False
         #: robots simulated elsewhere (other daemons of a shared fleet), asked before each tick
         self.ghost_source: GhostSource | None = None
         self._saver = saver  # --state: the fleet written as it runs
@@ -157,7 +140,7 @@ class Engine(ServedHere):
             NavigationStateRequest: self._navigation.state,
             PlaceRequest: self._place,
         }
-        self._known = self._status()
+        self._init_at_once()  # a pause answered at once: simd/engine/at_once.py
 
     def attach(self, adapter: Adapter) -> None:
         """Add an adapter; it hears of every robot already in the world (restored from a
@@ -174,7 +157,7 @@ class Engine(ServedHere):
         FleetError (busy) at once when the queue is full, so a flood never grows without
         bound and ``reply`` is never called for it."""
         try:
-            self._inbox.put_nowait(_Call(request, reply))
+            self._inbox.put_nowait(Call(request, reply))
         except queue.Full:
             raise FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry") from None
 
@@ -206,76 +189,9 @@ class Engine(ServedHere):
         Real time, whatever the target: the number a user sizes a fleet by."""
         return self._time.capacity()
 
-    def answer_at_once(self, request: Request | NavigationRequest | PlaceRequest) -> Result | FleetError | None:
-        """The answer to a request that needs nothing of the simulation thread, on the caller's
-        thread, or None (then :meth:`submit` it): the clock and the robot list from what the
-        simulation thread last made known (simd/engine/status.py), the world, and the refusal
-        of a spawn while the robot limit is reached. So looking never waits behind a tick, however
-        long ticks take. Every request answered here has no effect to be ordered after; any
-        thread may call it."""
-        if isinstance(request, (ClockRequest, PauseRequest)):
-            return self._clock_at_once(request)
-        status = self._known
-        if isinstance(request, WorldRequest):
-            return self.sim.world
-        if isinstance(request, SpawnRequest) and status.robots >= status.max_robots:
-            try:
-                self.sim.check_spawn_fields(request)  # a bad field is refused first, as the simulation thread would
-            except FleetError as e:
-                return e
-            return limit_refusal(status.max_robots, status.capacity_robots)
-        return None
-
-    def known(self) -> Status:
-        """What the simulation thread last made known (any thread)."""
-        return self._known
-
-    def _clock_at_once(self, request: ClockRequest | PauseRequest) -> Clock | FleetError | None:
-        """The clock, or a pause of a running simulation, answered on the caller's thread.
-
-        A pause is queued for the simulation thread as usual (in its order among the other
-        requests; it does the pausing: steps cancelled, the clock topic told), but answered now:
-        from here on the loop starts no tick until it has served it, so the reply names the last
-        tick there will be (the one being computed, if any) and says paused, and so does every
-        clock asked meanwhile. Paused already, the simulation thread answers it as before."""
-        with self._gate:
-            status = self._known
-            if isinstance(request, PauseRequest):
-                if status.paused or status.lockstep:
-                    return None
-                try:
-                    self._inbox.put_nowait(_Call(request, _ignore))
-                except queue.Full:
-                    return FleetError(ErrorCode.BUSY, "the daemon is busy: too many pending requests; retry")
-                self._pauses_asked += 1
-            if self._pauses_asked and not status.paused:
-                last = status.tick + (1 if self._ticking else 0)
-                status = dataclasses.replace(status, paused=True, tick=last, time=last * status.dt,
-                                             real_time_factor=0.0, falling_behind=False)  # fmt: skip
-        return status.clock(self._wall(), self._dropped())
-
-    def _dropped(self) -> int:
-        return sum(a.dropped_commands() for a in self.adapters)
-
     def _status(self, measured_cost: bool = True) -> Status:
         """The engine now, as other threads may see it (the simulation thread)."""
         return self._board.status(self.sim, self._time, self.paused, self.lockstep, measured_cost)
-
-    def _make_known(self, pause_served: bool = False) -> None:
-        """Publish the engine's status for other threads (none without adapters: a local fleet),
-        at once with the end of a tick being computed and of a pause asked (``pause_served``)."""
-        status = self._status() if self.adapters else self._known
-        with self._gate:
-            self._known = status
-            self._ticking = False
-            if pause_served:
-                self._pauses_asked = max(0, self._pauses_asked - 1)
-
-    def _start_tick(self) -> bool:
-        """Whether the loop may start a tick now (no pause asked): then it is being computed."""
-        with self._gate:
-            self._ticking = not self._pauses_asked
-            return self._ticking
 
     # -- the loop ---------------------------------------------------------------------------
 
@@ -322,18 +238,6 @@ class Engine(ServedHere):
             if self._saver is not None:
                 self._saver.save_now(capture(self.sim, self._goals()))
 
-    def _drain_while_paused(self) -> float:
-        """Keep the adapters' command buffers drained while time stands still, once a tick
-        period of wall time as when running, however many requests keep the loop busy; the
-        wait until the next drain. (Drained only when no request came for 0.25 s, a paused
-        daemon under a soak's steady requests let 5 s of 1 000 robots' cmd_vel pile up in the
-        ring, ~50 000 samples: the allocator kept the 8 MB they took, docs/robustness.md.)"""
-        now = self._wall()
-        if now >= self._drain_at:
-            self._gather_commands()
-            self._drain_at = now + self.sim.config.dt
-        return max(0.0, self._drain_at - now)
-
     def _adapters_ready(self) -> bool:
         """Whether every adapter takes a tick at once (one that may make the loop wait says so
         with a ``ready()`` method: simd/adapters/fleet/adapter.py)."""
@@ -367,48 +271,19 @@ class Engine(ServedHere):
         if self._saver is not None:
             self._next_save = min(self._next_save, self._wall() + SAVE_CHANGE_S)
 
-    def _next_call(self, timeout: float) -> _Call | None:
+    def _next_call(self, timeout: float) -> Call | None:
         try:
             call = self._inbox.get(timeout=timeout) if timeout > 0 else self._inbox.get_nowait()
         except queue.Empty:
             return None
         if call is None:  # stop() woke us
             self.stop_event.set()
-        return call if isinstance(call, _Call) else None  # (None too for a wake-up)
-
-    def _drain_chunk(self) -> bool:
-        """Let each adapter decode up to DRAIN_CHUNK of its waiting commands (those with a
-        ``drain_commands`` method: simd/adapters/fleet/adapter.py); whether any had more waiting."""
-        more = False
-        for a in self.adapters:
-            drain = getattr(a, "drain_commands", None)
-            if drain is not None and drain(DRAIN_CHUNK):
-                more = True
-        return more
-
-    def _drain_commands(self) -> bool:
-        """Before a tick: decode the waiting commands a chunk at a time with the requests that
-        come meanwhile served in between, so that none waits for all of them (the tick takes
-        what is left). False if a request was served: the loop looks again before ticking."""
-        served = False
-        for _ in range(DRAIN_CHUNKS):
-            if not self._drain_chunk() or self.stop_event.is_set():
-                break
-            while (call := self._next_call(0.0)) is not None:
-                self._serve(call)
-                served = True
-        return not served
+        return call if isinstance(call, Call) else None  # (None too for a wake-up)
 
     def serve_pending(self) -> None:
         """Serve every request waiting now (the loop does this between ticks and slices)."""
         while (call := self._next_call(0.0)) is not None:
             self._serve(call)
-
-    def _gather_commands(self) -> dict[str, tuple[float, float]]:
-        cmds = self._pending_commands
-        for a in self.adapters:
-            cmds.update(a.take_commands())
-        return cmds
 
     def tick(self, publish: bool = True, *, held: bool = False, last: bool = False) -> TickSnapshot:
         """Apply the newest commands, advance one tick, hand the snapshot to every adapter
@@ -465,9 +340,9 @@ class Engine(ServedHere):
     # -- requests ---------------------------------------------------------------------------
 
     def _serve_call(self, request: Request | NavigationRequest | PlaceRequest, reply: Reply) -> None:
-        self._serve(_Call(request, reply))
+        self._serve(Call(request, reply))
 
-    def _serve(self, call: _Call) -> None:
+    def _serve(self, call: Call) -> None:
         if isinstance(call.request, ClockRequest):  # drained first: the dropped count is current
             self._gather_commands()  # (not before every request: 80 000 commands a second take a while)
         handler = self._handlers.get(type(call.request))
@@ -531,7 +406,7 @@ class Engine(ServedHere):
         self.paused = True
         self._time.idle()
         self._time.lag.stopped("paused")
-        if reply is _ignore:  # answered at once (answer_at_once): the pause asked is served
+        if reply is ignore:  # answered at once (answer_at_once): the pause asked is served
             self._make_known(pause_served=True)
         self._announce_clock()
         return self.clock()
@@ -607,10 +482,6 @@ class Engine(ServedHere):
 
 def _always() -> bool:
     return True
-
-
-def _ignore(result: Result | FleetError) -> None:
-    """The reply of a request already answered (a pause answered at once)."""
 
 
 def _send(reply: Reply, result: Result | FleetError) -> None:

@@ -13,8 +13,7 @@ import pytest
 from protocol import control
 from protocol.control import Clock
 from simd.core.snapshot import TickSnapshot
-from simd.engine import Engine
-from simd.engine import engine as engine_module
+from simd.engine import Engine, intake
 from tests.engine.test_engine import Recorder, engine
 
 
@@ -138,7 +137,7 @@ def _draining(waiting: float) -> tuple[Engine, Draining]:
 
 
 def test_commands_are_decoded_in_chunks_before_a_tick_with_requests_served_between() -> None:
-    chunk = engine_module.DRAIN_CHUNK
+    chunk = intake.DRAIN_CHUNK
     e, d = _draining(2.5 * chunk)
     d.on_first_chunk = lambda: e.submit(control.SpawnRequest(name="b"), d.reply("spawned"))
     _run_until(e, lambda: any(k == "tick" for k, _ in d.log))
@@ -155,4 +154,4 @@ def test_commands_that_never_stop_coming_do_not_hold_a_tick_back() -> None:
     e, d = _draining(float("inf"))
     _run_until(e, lambda: any(k == "tick" for k, _ in d.log))
     kinds = [k for k, _ in d.log if k != "clock"]
-    assert kinds.index("tick") == engine_module.DRAIN_CHUNKS
+    assert kinds.index("tick") == intake.DRAIN_CHUNKS
