@@ -24,6 +24,7 @@ from clients.viewer.feed import Feed
 from clients.viewer.navigation import GoalView
 from clients.viewer.robot import RobotState
 from clients.viewer.state import FleetState, color_rgb
+from fleetcommon.polyline import nearest_on
 from protocol.errors import FleetError
 
 if TYPE_CHECKING:
@@ -245,17 +246,8 @@ def path_ahead(path: list[tuple[float, float]], x: float, y: float) -> list[tupl
     get there), as the page draws it. The path was planned from where the robot stood then."""
     if len(path) < 2:
         return []
-    best, at, k_best = math.inf, path[0], 0
-    for k in range(len(path) - 1):
-        (ax, ay), (bx, by) = path[k], path[k + 1]
-        dx, dy = bx - ax, by - ay
-        length2 = dx * dx + dy * dy
-        t = 0.0 if length2 == 0 else min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / length2))
-        px, py = ax + t * dx, ay + t * dy
-        off = math.hypot(px - x, py - y)
-        if off <= best:
-            best, at, k_best = off, (px, py), k
-    return [(x, y) if best <= PATH_OFF_M else at, *path[k_best + 1 :]]
+    off, at, k = nearest_on(path, x, y)
+    return [(x, y) if off <= PATH_OFF_M else at, *path[k + 1 :]]
 
 
 def _reach(r: RobotState) -> float:

@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fleetcommon.arrays import F64, I64
+from fleetcommon.polyline import nearest_on
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 from simd.nav.cells import CellGraph, body_radius, cell_size_for
@@ -353,16 +354,7 @@ class Floor:
 def _onto(line: list[tuple[float, float]], x: float, y: float) -> list[tuple[float, float]]:
     """The rest of polyline ``line`` from the point on it nearest (x, y): where a robot that
     strayed or cut a corner joins its way again (the later of two equally near segments)."""
-    best, at, k_best = math.inf, line[0], 0
-    for k in range(len(line) - 1):
-        (ax, ay), (bx, by) = line[k], line[k + 1]
-        dx, dy = bx - ax, by - ay
-        length2 = dx * dx + dy * dy
-        t = 0.0 if length2 == 0 else min(1.0, max(0.0, ((x - ax) * dx + (y - ay) * dy) / length2))
-        px, py = ax + t * dx, ay + t * dy
-        d = math.hypot(px - x, py - y)
-        if d <= best + 1e-9:
-            best, at, k_best = d, (px, py), k
+    best, at, k_best = nearest_on(line, x, y)
     rest = line[k_best + 1 :]
     return ([at] if best > 0.01 or not rest else []) + rest
 

@@ -246,17 +246,23 @@ def spawn_multi_robot(daemon: Daemon) -> list[tuple[str, float, float, float]]:
 # -- snapshot ---------------------------------------------------------------------------------
 
 
-def test_snapshot_png_shows_robots_at_their_poses(daemon: Daemon, tmp_path: Path) -> None:
-    robots = spawn_multi_robot(daemon)
-    out = tmp_path / "snap.png"
-    size = 800
+def take_snapshot(daemon: Daemon, out: Path, size: int) -> tuple[Image.Image, str]:
+    """``fleet-view --snapshot``: the picture, and what it said."""
     res = subprocess.run(
         fleet_view(daemon, "--snapshot", str(out), "--size", str(size)),
         capture_output=True, text=True, timeout=30, cwd=ROOT,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert "4 robots" in res.stdout
     img = Image.open(out)
+    assert img.size == (size, size)
+    return img, res.stdout
+
+
+def test_snapshot_png_shows_robots_at_their_poses(daemon: Daemon, tmp_path: Path) -> None:
+    robots = spawn_multi_robot(daemon)
+    size = 800
+    img, said = take_snapshot(daemon, tmp_path / "snap.png", size)
+    assert "4 robots" in said
     assert img.size == (size, size)
     tf = snapshot.fit(daemon.client().world(), [(x, y) for _, x, y, _ in robots], size)
     palette = [color_rgb(color_index(ns)) for ns, *_ in robots]
@@ -276,15 +282,9 @@ def test_snapshot_draws_a_goal_and_its_path(daemon: Daemon, tmp_path: Path) -> N
     while "tb3_0" not in c.plans() and time.monotonic() < deadline:
         time.sleep(0.05)
     plan = c.plans()["tb3_0"].points
-    out = tmp_path / "nav.png"
     size = 800
-    res = subprocess.run(
-        fleet_view(daemon, "--snapshot", str(out), "--size", str(size)),
-        capture_output=True, text=True, timeout=30, cwd=ROOT,
-    )  # fmt: skip
-    assert res.returncode == 0, res.stderr
+    img, _ = take_snapshot(daemon, tmp_path / "nav.png", size)
     assert not goal.done
-    img = Image.open(out)
     tf = snapshot.fit(c.world(), [], size)
     rgb = snapshot.goal_rgb(color_index("tb3_0"))
     assert colour_count(img, tf.to_pixel(1.5, 0.5), 4, rgb) >= 6  # the cross at the goal

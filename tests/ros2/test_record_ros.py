@@ -38,19 +38,24 @@ def wait_subscribed(router: str, keys: list[str], proc: subprocess.Popen[str]) -
             p.undeclare()
 
 
+def start_recorder(ros: RosDomain, bag: Path, *args: str) -> subprocess.Popen[str]:
+    """``fleet-record --source ros`` on the domain's router, writing ``bag`` (SIGINT stops it)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "clients.record.cli", "--source", "ros", "--ros-router", ros.router, "-o", str(bag),
+         *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+
+
 def test_ros_topics_recorded_as_they_came(ros_factory: Callable[..., RosDomain], tmp_path: Path) -> None:
     ros = ros_factory("--lockstep")
     c = ros.daemon.client()
     c.spawn("burger_1", -2.0, -0.5, namespace="TB3_1")
     c.spawn("waffle_2", 0.5, -2.0, model="waffle", namespace="TB3_2")
     bag = tmp_path / "ros_run"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clients.record.cli", "--source", "ros", "--ros-router", ros.router, "-o", str(bag),
-         "--robots", "TB3_1", "--topics", "odom,scan,imu,tf,tf_static,clock"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )  # fmt: skip
+    proc = start_recorder(ros, bag, "--robots", "TB3_1", "--topics", "odom,scan,imu,tf,tf_static,clock")
     keys = [
         key(0, "/TB3_1/odom", "nav_msgs/msg/Odometry"),
         key(0, "/TB3_1/scan", "sensor_msgs/msg/LaserScan"),
@@ -96,13 +101,7 @@ def test_each_robots_own_transforms_recorded_in_nav2s_layout(
     c.spawn("waffle_2", 0.5, -2.0, model="waffle", namespace="TB3_2")
     ros.tool.wait_graph(lambda g: ("/TB3_1/tf_static", "MP") in {(e.topic, e.kind) for e in g})
     bag = tmp_path / "ros_tf"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "clients.record.cli", "--source", "ros", "--ros-router", ros.router, "-o", str(bag),
-         "--robots", "TB3_1", "--topics", "odom,tf,tf_static"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
-    )  # fmt: skip
+    proc = start_recorder(ros, bag, "--robots", "TB3_1", "--topics", "odom,tf,tf_static")
     wait_subscribed(ros.router, [key(0, "/TB3_1/odom", "nav_msgs/msg/Odometry")], proc)
     tf1 = ros.tool.subscribe("/TB3_1/tf", "tf2_msgs/msg/TFMessage")  # another peer of the router, as a fence
     reply = c.step(30, observe=["TB3_1"])
