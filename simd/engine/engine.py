@@ -38,7 +38,7 @@ from protocol.control import (
 from protocol.errors import ErrorCode, FleetError
 from protocol.navigation import CancelRequest, NavigateRequest, NavigationRequest, NavigationStateRequest
 from simd.core.sim import Simulation
-from simd.core.snapshot import TickSnapshot
+from simd.core.snapshot import RobotState, TickSnapshot
 from simd.engine.at_once import AnsweredAtOnce, Call, ignore
 from simd.engine.capacity import limit_refusal
 from simd.engine.checkpoint import SAVE_CHANGE_S, SAVE_EVERY_S, Saver, capture
@@ -381,15 +381,21 @@ class Engine(CommandIntake, AnsweredAtOnce, ServedHere):
 
     def _delete(self, req: DeleteRequest, reply: Reply) -> Result:
         last = self.sim.delete(req.name)
-        if self.navigator is not None:
-            self.navigator.deleted(last.namespace, self.sim.time)
-            self._navigation.tell()
-        self._scans.forget(last.namespace)
-        self._pending_commands.pop(last.namespace, None)
-        self._event(Deleted(last, (self.sim.epoch, self.sim.tick)))
-        self._changed()
-        log.info("deleted %s", last.name)
+        self._deleted([last])
         return last
+
+    def _deleted(self, gone: list[RobotState]) -> None:
+        """What the engine and its adapters keep of robots just deleted goes with them."""
+        if self.navigator is not None:
+            for last in gone:
+                self.navigator.deleted(last.namespace, self.sim.time)
+            self._navigation.tell()
+        for last in gone:
+            self._scans.forget(last.namespace)
+            self._pending_commands.pop(last.namespace, None)
+            self._event(Deleted(last, (self.sim.epoch, self.sim.tick)))
+            log.info("deleted %s", last.name)
+        self._changed()
 
     def _place(self, req: PlaceRequest, reply: Reply) -> Result:
         state = self.sim.place(req.robot, req.x, req.y, req.yaw)

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 from protocol.control import Request, StepRequest
 from protocol.errors import ErrorCode, FleetError
 from simd.core.sim import Simulation
+from simd.core.snapshot import RobotState
 from simd.engine.ports import PlaceRequest, Reply, Result, StepResult
 from simd.engine.stepping import StepJob, StepPlanner
 
@@ -41,6 +42,35 @@ class ServedHere:
 
     def _gather_commands(self) -> dict[str, tuple[float, float]]:
         raise NotImplementedError
+
+    def _deleted(self, gone: list[RobotState]) -> None:
+        raise NotImplementedError
+
+    def _make_known(self, pause_served: bool = False) -> None:
+        raise NotImplementedError
+
+    def delete_many_here(self, names: list[str]) -> tuple[list[RobotState], FleetError | None]:
+        """Delete these robots at once, as that many delete requests served in this order would
+        (a name not found, or a robot named again, is refused and the others deleted), with the
+        table re-indexed once instead of once a robot (a learning environment clearing a
+        thousand robots at every reset). The robots deleted, and the first refusal, naming its
+        robot."""
+        chosen: list[str] = []
+        seen: set[int] = set()
+        refusal: FleetError | None = None
+        for name in names:
+            robot = self.sim.robots.find(name)
+            if robot is None or robot.rid in seen:
+                if refusal is None:
+                    refusal = FleetError(ErrorCode.NOT_FOUND, f"{name}: Entity [{name}] does not exist", "name")
+                continue
+            seen.add(robot.rid)
+            chosen.append(name)
+        gone = self.sim.delete_many(chosen) if chosen else []
+        if gone:
+            self._deleted(gone)
+            self._make_known()
+        return gone, refusal
 
     def serve_here(self, request: Request | NavigationRequest | PlaceRequest) -> Result | FleetError:
         """Serve one request on the calling thread, a step to its last tick, and return its answer."""

@@ -134,13 +134,17 @@ class LocalFleet:
         return self._robot(DeleteRequest(name=name))
 
     def delete_many(self, names: Iterable[str]) -> list[RobotState]:
-        """Delete these robots in this order, as FleetClient.delete_many."""
-        requests = []
-        for n in names:
+        """Delete these robots in this order, as FleetClient.delete_many: every one tried, the
+        first refusal (naming its robot) raised afterwards, the others deleted; all at once
+        (``Engine.delete_many_here``)."""
+        listed = list(names)
+        for n in listed:
             if not isinstance(n, str):
                 raise TypeError(f"delete_many takes robot names, got {n!r}")
-            requests.append(DeleteRequest(name=n))
-        return self._each(requests)
+        gone, refusal = self._engine.delete_many_here(listed)
+        if refusal is not None:
+            raise refusal
+        return gone
 
     def _robot(self, request: Request) -> RobotState:
         state = self._ask(request)

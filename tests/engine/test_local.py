@@ -63,6 +63,49 @@ def test_a_local_fleet_refuses_as_the_daemon_does() -> None:
         assert len(fleet) == 1 and fleet.clock().paused and fleet.clock().lockstep
 
 
+def test_deleting_many_at_once_is_deleting_them_one_by_one() -> None:
+    """``delete_many`` deletes in one go (the table re-indexed once): the same robots gone, the
+    same refusal, and the ticks after it the same bytes as deletes served one at a time."""
+    spots = [
+        (-0.55, 1.6),
+        (0.55, 1.6),
+        (-1.6, 0.55),
+        (1.6, 0.55),
+        (-0.55, -1.6),
+        (1.6, -0.55),
+        (-0.55, 0.55),
+        (0.55, -0.55),
+    ]
+    more = [SpawnRequest(name=f"r{i}", x=x, y=y) for i, (x, y) in enumerate(spots)]
+    fleets = [LocalFleet("turtlebot3_world", lidar_thread=False) for _ in range(2)]
+    try:
+        for fleet in fleets:
+            fleet.reset(3)
+            fleet.spawn_many([*ROBOTS, *more])
+        names = ["r5", "bee", "r1", "b", "r6", "nobody"]  # "b" is "bee" again: refused, as "nobody"
+        at_once, one_by_one = fleets
+        with pytest.raises(FleetError, match=r"^not_found: b: Entity \[b\] does not exist$") as e:
+            at_once.delete_many(names)
+        assert e.value.code is ErrorCode.NOT_FOUND
+        for name in names:
+            try:
+                one_by_one.delete(name)
+            except FleetError:
+                pass
+        assert [r.name for r in at_once.robots()] == [r.name for r in one_by_one.robots()]
+        assert len(at_once) == 3 + 8 - 4
+        left = [r.namespace for r in at_once.robots()]
+        rng = np.random.default_rng(5)
+        for _ in range(5):  # the ticks after: the same bytes
+            cmd = np.stack([rng.uniform(-0.2, 0.22, len(left)), rng.uniform(-2.0, 2.0, len(left))], axis=1)
+            mine, theirs = (f.step(6, commands=(left, cmd), observe=left, packed=True).packed for f in fleets)
+            assert mine is not None and theirs is not None
+            assert (bytes(mine.odom), bytes(mine.ranges)) == (bytes(theirs.odom), bytes(theirs.ranges))
+    finally:
+        for fleet in fleets:
+            fleet.close()
+
+
 def test_a_local_fleets_step_with_command_arrays_is_checked_as_a_request_is() -> None:
     """The envs' every step (commands as arrays, served without the request's bytes) refuses
     what a step request is refused for, with the same codes, and runs nothing then."""
