@@ -198,7 +198,7 @@ def render(
         for x, y in r.scan_points(1):
             sx, sy = px(float(x), float(y))
             d.rectangle((sx - dot, sy - dot, sx + dot, sy + dot), fill=col)
-    goals = {r.namespace: goals[r.namespace] for r in robots if r.namespace in goals} if goals else {}
+    goals = goals or {}
     _draw_goals(d, px, big.scale, robots, goals)
     for r in robots:
         c, s = math.cos(r.yaw), math.sin(r.yaw)
@@ -293,8 +293,8 @@ def _draw_goals(
 
 
 def take_snapshot(client: FleetClient, path: Path, size: int = 1024, timeout: float = 5.0) -> int:
-    """Connect, wait for every robot's odometry and one scan (at most ``timeout`` s), write
-    the PNG. Returns the number of robots drawn."""
+    """Connect, wait for every robot's odometry and one scan and for the goals under way (at
+    most ``timeout`` s in all), write the PNG. Returns the number of robots drawn."""
     state = FleetState()
     feed = Feed(client, state)
     try:
