@@ -7,6 +7,8 @@ so the per-tick cost does not grow with a Python loop over robots.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 import numpy.typing as npt
 import pymunk
@@ -41,16 +43,7 @@ class Physics:
         # with the defaults; 3.4 mm at 50 %; 3 substeps at 50 % cost 50 % more for 2.0 mm).
         self.space.collision_bias = pow(0.3, 60)
         self.substeps = substeps
-        static = self.space.static_body
-        shapes: list[pymunk.Shape] = []
-        for poly in world.polygons:
-            shapes.append(pymunk.Poly(static, [tuple(p) for p in poly]))
-        for x, y, r in world.circles:
-            shapes.append(pymunk.Circle(static, float(r), (float(x), float(y))))
-        for s in shapes:
-            s.collision_type = _STATIC
-            s.friction = 0.0
-        self.space.add(*shapes)
+        self.space.add(*_static_shapes(world, self.space.static_body))
         self._bodies: dict[int, pymunk.Body] = {}  # robot id -> body
         #: model name -> the blocker's probe body for that model
         self._probes: dict[str, tuple[RobotModel, pymunk.Body, list[pymunk.Shape]]] = {}
@@ -80,44 +73,25 @@ class Physics:
     # -- robots -------------------------------------------------------------------------
 
     def _make_body(self, model: RobotModel) -> tuple[pymunk.Body, list[pymunk.Shape]]:
-        """A body with the exact footprint as two convex boxes (``RobotModel.collision_boxes``):
-        contacts among robots pressing into walls and each other are most of pymunk's time,
-        and two boxes make ~0.1 ms less of a 100-robot tick than chassis and two wheels."""
-        body = pymunk.Body()
-        boxes = model.collision_boxes()
-        areas = [(x1 - x0) * (y1 - y0) for x0, x1, y0, y1 in boxes]
-        shapes: list[pymunk.Shape] = []
-        for (x0, x1, y0, y1), area in zip(boxes, areas, strict=True):
-            s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
-            s.mass = model.mass * area / sum(areas)
-            s.friction = 0.0
-            s.collision_type = _ROBOT
-            shapes.append(s)
-        return body, shapes
+        return _robot_body(model)
 
-    def blocker(self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None) -> int | None:
+    def blocker(
+        self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None, robots: bool = True
+    ) -> int | None:
         """What the footprint at this pose would overlap: -1 for static geometry, a robot
         id for a robot, None if the place is free. Robot ``ignore`` does not count (a robot
-        being moved may overlap where it stands now)."""
+        being moved may overlap where it stands now), nor any robot without ``robots``."""
         # one probe body per model, moved from query to query (never added to the space):
         # placing a thousand robots asks this some ten thousand times
         probe = self._probes.get(model.name)
         if probe is None or probe[0] is not model:  # a model of the same name is another model
             probe = self._probes[model.name] = (model, *self._make_body(model))
-        _, body, shapes = probe
-        body.position = (x, y)
-        body.angle = yaw
-        for s in shapes:
-            s.cache_bb()
-            for hit in self.space.shape_query(s):
-                other = hit.shape
-                if other is None:
-                    continue
-                if other.body is self.space.static_body:
-                    return -1
-                rid = getattr(other.body, "rid", None)
-                if rid is not None and rid != ignore:
-                    return int(rid)
+        for other in _overlapping(self.space, probe[1], probe[2], x, y, yaw):
+            if other.body is self.space.static_body:
+                return -1
+            rid = getattr(other.body, "rid", None)
+            if robots and rid is not None and rid != ignore:
+                return int(rid)
         return None
 
     def add_robot(self, rid: int, model: RobotModel, x: float, y: float, yaw: float) -> None:
@@ -277,3 +251,67 @@ class Physics:
         y[r] = data[ok, 1]
         a[r] = data[ok, 2]
         return x, y, a
+
+
+def _robot_body(model: RobotModel) -> tuple[pymunk.Body, list[pymunk.Shape]]:
+    """A body with the exact footprint as two convex boxes (``RobotModel.collision_boxes``):
+    contacts among robots pressing into walls and each other are most of pymunk's time,
+    and two boxes make ~0.1 ms less of a 100-robot tick than chassis and two wheels."""
+    body = pymunk.Body()
+    boxes = model.collision_boxes()
+    areas = [(x1 - x0) * (y1 - y0) for x0, x1, y0, y1 in boxes]
+    shapes: list[pymunk.Shape] = []
+    for (x0, x1, y0, y1), area in zip(boxes, areas, strict=True):
+        s = pymunk.Poly(body, [(x0, y0), (x1, y0), (x1, y1), (x0, y1)])
+        s.mass = model.mass * area / sum(areas)
+        s.friction = 0.0
+        s.collision_type = _ROBOT
+        shapes.append(s)
+    return body, shapes
+
+
+def _static_shapes(world: WorldGeometry, static: pymunk.Body) -> list[pymunk.Shape]:
+    """The world's walls and obstacles as shapes of ``static``."""
+    shapes: list[pymunk.Shape] = []
+    for poly in world.polygons:
+        shapes.append(pymunk.Poly(static, [tuple(p) for p in poly]))
+    for x, y, r in world.circles:
+        shapes.append(pymunk.Circle(static, float(r), (float(x), float(y))))
+    for s in shapes:
+        s.collision_type = _STATIC
+        s.friction = 0.0
+    return shapes
+
+
+def _overlapping(
+    space: pymunk.Space, body: pymunk.Body, shapes: list[pymunk.Shape], x: float, y: float, yaw: float
+) -> Iterator[pymunk.Shape]:
+    """The shapes of ``space`` that a probe (``body`` with ``shapes``, never added to the
+    space) overlaps at this pose."""
+    body.position = (x, y)
+    body.angle = yaw
+    for s in shapes:
+        s.cache_bb()
+        for hit in space.shape_query(s):
+            if hit.shape is not None:
+                yield hit.shape
+
+
+class Walls:
+    """The world's static geometry in a space of its own, for checking a pose off the
+    simulation thread (a spawn answered at once: simd/engine/promises.py). It holds the same
+    shapes the simulation's space does, so a pose it finds on a wall is one
+    :meth:`Physics.blocker` finds on a wall. Not thread-safe: its owner serialises the calls."""
+
+    def __init__(self, world: WorldGeometry) -> None:
+        self.space = pymunk.Space()
+        self.space.collision_slop = 0.0005  # as the simulation's space
+        self.space.add(*_static_shapes(world, self.space.static_body))
+        self._probes: dict[str, tuple[RobotModel, pymunk.Body, list[pymunk.Shape]]] = {}
+
+    def blocked(self, model: RobotModel, x: float, y: float, yaw: float) -> bool:
+        """Whether the model's footprint at this pose overlaps a wall or an obstacle."""
+        probe = self._probes.get(model.name)
+        if probe is None or probe[0] is not model:
+            probe = self._probes[model.name] = (model, *_robot_body(model))
+        return next(_overlapping(self.space, probe[1], probe[2], x, y, yaw), None) is not None

@@ -164,8 +164,11 @@ class Simulation:
                 raise FleetError(ErrorCode.NON_FINITE, f"{fname} must be finite, got {v}", fname)
         return name, namespace, model
 
-    def validate_spawn(self, req: SpawnRequest) -> tuple[str, str, RobotModel, float, float, float]:
-        """Check a spawn request against every rule; return the normalised fields."""
+    def validate_spawn(
+        self, req: SpawnRequest, robots_may_overlap: bool = False
+    ) -> tuple[str, str, RobotModel, float, float, float]:
+        """Check a spawn request against every rule; return the normalised fields. With
+        ``robots_may_overlap`` a robot in the way does not count (see :meth:`spawn`)."""
         name, namespace, model = self.check_spawn_fields(req)
         if len(self.robots) >= self.config.max_robots:
             raise FleetError(
@@ -181,12 +184,14 @@ class Simulation:
                     fname,
                 )
         x, y, yaw = float(req.x), float(req.y), wrap_angle(float(req.yaw))
-        self._check_place(model, x, y, yaw)
+        self._check_place(model, x, y, yaw, robots=not robots_may_overlap)
         return name, namespace, model, x, y, yaw
 
-    def _check_place(self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None) -> None:
+    def _check_place(
+        self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None, robots: bool = True
+    ) -> None:
         """Refuse a pose that puts the model outside the world or on a wall or another robot
-        (robot ``ignore``, the one being moved, does not count)."""
+        (robot ``ignore``, the one being moved, does not count; no robot without ``robots``)."""
         c, s = math.cos(yaw), math.sin(yaw)
         ox = x + model.outline[:, 0] * c - model.outline[:, 1] * s
         oy = y + model.outline[:, 0] * s + model.outline[:, 1] * c
@@ -198,7 +203,7 @@ class Simulation:
                 f"{self.world.name!r}: x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}]",
                 "x",
             )
-        hit = self.physics.blocker(model, x, y, yaw, ignore)
+        hit = self.physics.blocker(model, x, y, yaw, ignore, robots)
         if hit is not None:
             if hit < 0:
                 what = "a wall or obstacle"
@@ -216,11 +221,15 @@ class Simulation:
         *,
         spawn_pose: tuple[float, float, float] | None = None,
         odom: tuple[float, float, float] | None = None,
+        robots_may_overlap: bool = False,
     ) -> Robot:
         """Add a robot, or raise :class:`FleetError` leaving the world untouched. A robot
         brought back from a saved state keeps the ``spawn_pose`` a reset returns it to and the
-        ``odom`` pose its odometry had reached; a new one starts with both at its pose."""
-        name, namespace, model, x, y, yaw = self.validate_spawn(req)
+        ``odom`` pose its odometry had reached; a new one starts with both at its pose.
+        ``robots_may_overlap``: a spawn already promised (answered at once, with room to
+        spare then) is made even if a robot pushed since has come too near; the physics
+        parts them, as Gazebo's spawns into a robot do."""
+        name, namespace, model, x, y, yaw = self.validate_spawn(req, robots_may_overlap)
         ox, oy, oyaw = odom if odom is not None else (x, y, yaw)
         open_phases = [p for p, load in enumerate(self._phase_load) if load < SCAN_BATCH]
         phase = open_phases[0] if open_phases else int(np.argmin(self._phase_load))

@@ -23,6 +23,7 @@ from simd.engine.stepping import StepJob, StepPlanner
 if TYPE_CHECKING:
     from fleetcommon.arrays import F64
     from protocol.navigation import NavigationRequest
+    from simd.engine.at_once import Call
 
 
 class ServedHere:
@@ -46,7 +47,7 @@ class ServedHere:
     def _deleted(self, gone: list[RobotState]) -> None:
         raise NotImplementedError
 
-    def _make_known(self, pause_served: bool = False) -> None:
+    def _make_known(self, served: Call | None = None) -> None:
         raise NotImplementedError
 
     def delete_many_here(self, names: list[str]) -> tuple[list[RobotState], FleetError | None]:

@@ -25,8 +25,9 @@ from simd.engine.ports import OwnRobots
 @dataclass(frozen=True)
 class Roster:
     """Every robot at sim ``time``, in spawn order: ``robots[k]`` is row ``k`` of the columns
-    (true pose and body-frame twist). The columns are the table's own arrays, which the step
-    replaces rather than writes into, so they stay as they were."""
+    (true pose and body-frame twist, ``lateral`` its sideways part). The columns are the
+    table's own arrays, which the step replaces rather than writes into, so they stay as they
+    were."""
 
     time: float
     robots: list[Robot]
@@ -35,10 +36,11 @@ class Roster:
     yaw: F64
     linear: F64
     angular: F64
+    lateral: F64
 
     @classmethod
     def of(cls, table: RobotTable, time: float, robots: list[Robot]) -> Roster:
-        return cls(time, robots, table.x, table.y, table.yaw, table.vx, table.wz)
+        return cls(time, robots, table.x, table.y, table.yaw, table.vx, table.wz, table.vy)
 
 
 @dataclass(frozen=True)
@@ -64,6 +66,7 @@ class Status:
     period: float
     max_robots: int
     roster: Roster
+    epoch: int = 0  # resets so far
 
     def behind_s(self, now: float) -> float:
         """As :meth:`simd.engine.pacing.Pacer.behind_s`, at ``now``."""
@@ -152,4 +155,5 @@ class StatusBoard:
             period=pacer.period,
             max_robots=sim.config.max_robots,
             roster=Roster.of(t, sim.time, self._robots),
+            epoch=sim.epoch,
         )

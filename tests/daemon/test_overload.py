@@ -239,3 +239,51 @@ def test_looking_never_waits_for_a_tick_however_long_it_takes() -> None:
             engine.stop()
             thread.join(10.0)
             adapter.close()
+
+
+@pytest.mark.slow
+def test_a_spawn_a_delete_and_a_resume_never_wait_for_a_tick_however_long_it_takes() -> None:
+    """Ticks of 3 s each: a spawn, a delete, and a resume after a pause are answered within
+    1.5 s (they used to wait for the tick to end), and what they answer holds at once: the
+    list and the clock count the new robot, a deleted robot is gone from the list and from
+    the robots alive, and the simulation makes both before its next tick."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=10))
+    heavy = _HeavyTicks(3.0)
+    with zenoh.open(conf) as session:
+        engine = Engine(sim)
+        adapter = FleetAdapter(session, Keys(), engine)
+        for request in _grid(2):
+            engine.submit(request, lambda r: None)
+        engine.serve_pending()
+        engine.attach(heavy)
+        thread = threading.Thread(target=engine.run, daemon=True)
+        thread.start()
+        try:
+            with FleetClient(f"tcp/127.0.0.1:{port}", timeout=10.0) as c:
+                assert wait_until(lambda: heavy.ticks >= 1 and sorted(c.alive()) == ["r0", "r1"], 10.0)
+                took: dict[str, float] = {}
+                t0 = time.monotonic()
+                new = c.spawn("new", 2.0, 2.0)
+                took["spawn"] = time.monotonic() - t0
+                assert (new.name, new.pose.x, new.pose.y) == ("new", 2.0, 2.0)
+                assert [r.name for r in c.robots()] == ["r0", "r1", "new"] and c.clock().robots == 3
+                t0 = time.monotonic()
+                gone = c.delete("r0")
+                took["delete"] = time.monotonic() - t0
+                assert gone.name == "r0" and [r.name for r in c.robots()] == ["r1", "new"]
+                assert wait_until(lambda: "r0" not in c.alive(), 1.0)  # its token went with the answer
+                t0 = time.monotonic()
+                assert c.pause().paused and not c.resume().paused
+                took["pause and resume"] = time.monotonic() - t0
+                assert all(s < 1.5 for s in took.values()), took
+                assert wait_until(lambda: "new" in c.alive() and len(sim) == 2, 10.0)  # made by the simulation
+                assert [r.name for r in sim.robots.robots] == ["r1", "new"] and not engine.paused
+        finally:
+            engine.stop()
+            thread.join(15.0)
+            adapter.close()

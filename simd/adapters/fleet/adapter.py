@@ -116,7 +116,7 @@ class FleetAdapter:
                 request = self._for_here(request)
         if isinstance(request, ListRequest):  # looking, or a refusal: answered here, never behind a tick
             if pending.fmt == "msgpack":
-                r = self.engine.known().roster
+                r = self.engine.roster_now()
                 pending.ok_encoded(self._list_encoder.encode(r.time, self._list_records(r), r.x, r.y, r.yaw,
                                                              r.linear, r.angular))  # fmt: skip
             else:
@@ -124,6 +124,11 @@ class FleetAdapter:
             return
         at_once = self.engine.answer_at_once(request)
         if at_once is not None:
+            if isinstance(request, DeleteRequest) and isinstance(at_once, RobotState):
+                # gone for its subscribers from this answer on, though the simulation thread
+                # deletes it before its next tick: the tick being computed leaves it out
+                at = self.engine.deleted_at()
+                self.outbox.put_urgent(partial(self.publisher.remove_robot, at_once.namespace, at))
             _answer(pending, at_once if isinstance(at_once, FleetError) else self._message(at_once))
             return
         lane = _lane(request)
@@ -149,7 +154,7 @@ class FleetAdapter:
         query's thread: each robot's record is kept from its spawn, with the pose and twist of
         now put in. What a JSON list is made of; MessagePack is written from byte templates of
         the same records (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60)."""
-        roster = self.engine.known().roster
+        roster = self.engine.roster_now()
         replace = msgspec.structs.replace
         columns = (roster.x.tolist(), roster.y.tolist(), roster.yaw.tolist(), roster.linear.tolist(),
                    roster.angular.tolist())  # fmt: skip

@@ -1,0 +1,190 @@
+"""Spawns and deletes answered before the simulation thread makes them (issue 33).
+
+A daemon with more robots than it keeps in real time spends ~120 ms in one physics step at
+20 000 robots, and a spawn or delete served between ticks waited for it. When the answer is
+certain from what the simulation thread last made known (simd/engine/status.py), it is given
+at once and the request is queued as usual: a *promise*, made by the simulation thread before
+its next tick, in the order asked. It is certain when nothing queued ahead of it can change it
+(only promises are waiting, the caller checks) and:
+
+- a spawn's names are free (counting the promises ahead), it fits under the robot limit, its
+  pose is inside the world and off every wall (:class:`~simd.core.physics.Walls`, the same
+  shapes), and no robot stands within ``MARGIN_M`` of its footprint's circle (robots deleted
+  by a promise ahead do not count; they are gone first). A robot moves ~1 cm a tick, so the
+  place is still free when the spawn is made; should a pushed robot have come nearer anyway,
+  the spawn is made regardless and the physics parts them;
+- a delete names a robot that is there (or promised).
+
+Anything else (a name taken, a pose near a wall or a robot, a robot not found) is left to the
+simulation thread, which answers as before. A promise's answer is what the simulation thread
+would answer: a spawn's robot at rest at its pose, a deleted robot's last known state.
+Not thread-safe: :class:`~simd.engine.at_once.AnsweredAtOnce` calls it under its lock.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol.control import DeleteRequest, SpawnRequest
+from simd.core.models import MODELS, RobotModel
+from simd.core.physics import Walls
+from simd.core.robots import Robot
+from simd.core.sim import Simulation, wrap_angle
+from simd.core.snapshot import RobotState
+from simd.engine.status import Roster
+
+#: Room kept round a promised spawn beyond the robots' circles (m): what a robot could move
+#: between the status it was checked against and the spawn, many times over.
+MARGIN_M = 0.1
+_WIDEST = max(m.radius for m in MODELS.values())
+
+
+@dataclass(frozen=True)
+class Promise:
+    """A spawn or delete answered at once and queued for the simulation thread."""
+
+    request: SpawnRequest | DeleteRequest
+    #: the answer: the spawned robot at its pose, or the deleted robot's last known state
+    state: RobotState
+
+    @property
+    def spawn(self) -> bool:
+        return isinstance(self.request, SpawnRequest)
+
+
+class Promises:
+    """The promises not yet made, in order, and whether a new one can be given (see the
+    module docstring)."""
+
+    def __init__(self, sim: Simulation) -> None:
+        self._sim = sim  # for its any-thread checks only (fields, bounds)
+        self._walls: Walls | None = None  # made at the first spawn asked
+        self.pending: list[Promise] = []
+        self._index_of: tuple[list[Robot] | None, dict[str, int]] = (None, {})
+
+    def __bool__(self) -> bool:
+        return bool(self.pending)
+
+    # -- the fleet as the promises leave it ------------------------------------------------
+
+    def net(self) -> tuple[dict[str, Promise], set[str]]:
+        """The spawns promised and not deleted after (by namespace), and the namespaces of
+        robots there now that a promise deletes."""
+        added: dict[str, Promise] = {}
+        removed: set[str] = set()
+        for p in self.pending:
+            ns = p.state.namespace
+            if p.spawn:
+                added[ns] = p
+            elif added.pop(ns, None) is None:
+                removed.add(ns)
+        return added, removed
+
+    def count(self, robots_now: int) -> int:
+        """How many robots there are once the promises are made."""
+        added, removed = self.net()
+        return robots_now + len(added) - len(removed)
+
+    def roster(self, roster: Roster) -> Roster:
+        """``roster`` as it is once the promises are made: the robots a promise deletes left out,
+        those it spawns added at the end, at rest at their poses (as the simulation thread
+        appends them)."""
+        added, removed = self.net()
+        if not added and not removed:
+            return roster
+        keep = np.fromiter((r.namespace not in removed for r in roster.robots), dtype=bool, count=len(roster.robots))
+        robots = [r for r, k in zip(roster.robots, keep.tolist(), strict=True) if k]
+        new = [p.state for p in added.values()]
+        robots += [Robot(-1, s.name, s.namespace, s.model, s.spawn_pose, -1) for s in new]
+        zeros = np.zeros(len(new))
+
+        def column(values: np.ndarray, of_new: list[float] | np.ndarray) -> np.ndarray:
+            return np.concatenate([values[keep], np.asarray(of_new, dtype=np.float64)])
+
+        return Roster(
+            roster.time,
+            robots,
+            column(roster.x, [s.x for s in new]),
+            column(roster.y, [s.y for s in new]),
+            column(roster.yaw, [s.yaw for s in new]),
+            column(roster.linear, zeros),
+            column(roster.angular, zeros),
+            column(roster.lateral, zeros),
+        )
+
+    # -- promising ---------------------------------------------------------------------------
+
+    def spawn(self, req: SpawnRequest, roster: Roster) -> RobotState | None:
+        """The spawned robot, promised; or None: the simulation thread decides. The caller has
+        checked the fields and the robot limit."""
+        name, namespace, model = self._sim.check_spawn_fields(req)
+        added, removed = self.net()
+        index = self._index(roster)
+        taken = {k for p in added.values() for k in (p.state.name, p.state.namespace)}
+        for key in {name, namespace}:
+            row = index.get(key)
+            if key in taken or (row is not None and roster.robots[row].namespace not in removed):
+                return None
+        x, y, yaw = float(req.x), float(req.y), wrap_angle(float(req.yaw))
+        if not self._clear(model, x, y, yaw, roster, added, removed):
+            return None
+        state = RobotState(name, namespace, model, x, y, yaw, 0.0, 0.0, (x, y, yaw), odom=(x, y, yaw))
+        self.pending.append(Promise(req, state))
+        return state
+
+    def delete(self, req: DeleteRequest, roster: Roster) -> RobotState | None:
+        """The deleted robot's last known state, promised; or None (the simulation thread says
+        it is not there)."""
+        added, removed = self.net()
+        key = req.name
+        state = next((p.state for p in added.values() if key in (p.state.name, p.state.namespace)), None)
+        if state is None:
+            row = self._index(roster).get(key)
+            if row is None or roster.robots[row].namespace in removed:
+                return None
+            r = roster.robots[row]
+            state = RobotState(r.name, r.namespace, r.model, float(roster.x[row]), float(roster.y[row]),
+                               float(roster.yaw[row]), float(roster.linear[row]), float(roster.angular[row]),
+                               r.spawn_pose, float(roster.lateral[row]))  # fmt: skip
+        self.pending.append(Promise(req, state))
+        return state
+
+    def made(self) -> None:
+        """The simulation thread has made the oldest promise (they are made in order)."""
+        self.pending.pop(0)
+
+    def _index(self, roster: Roster) -> dict[str, int]:
+        """Each robot's row by name and by namespace, once per roster."""
+        if self._index_of[0] is not roster.robots:
+            index: dict[str, int] = {}
+            for row, r in enumerate(roster.robots):
+                index[r.name] = row
+                index[r.namespace] = row
+            self._index_of = (roster.robots, index)
+        return self._index_of[1]
+
+    def _clear(self, model: RobotModel, x: float, y: float, yaw: float, roster: Roster,
+               added: dict[str, Promise], removed: set[str]) -> bool:  # fmt: skip
+        """Whether the footprint at this pose is inside the world, off the walls, and a margin
+        clear of every robot's circle that will still be there."""
+        c, s = math.cos(yaw), math.sin(yaw)
+        ox = x + model.outline[:, 0] * c - model.outline[:, 1] * s
+        oy = y + model.outline[:, 0] * s + model.outline[:, 1] * c
+        x0, x1, y0, y1 = self._sim.world.bounds
+        if ox.min() < x0 or ox.max() > x1 or oy.min() < y0 or oy.max() > y1:
+            return False
+        if self._walls is None:
+            self._walls = Walls(self._sim.world)
+        if self._walls.blocked(model, x, y, yaw):
+            return False
+        reach = model.radius + _WIDEST + MARGIN_M
+        near = np.flatnonzero((roster.x - x) ** 2 + (roster.y - y) ** 2 < reach * reach)
+        if any(roster.robots[i].namespace not in removed for i in near.tolist()):
+            return False
+        return all(
+            math.hypot(p.state.x - x, p.state.y - y) >= model.radius + p.state.model.radius + MARGIN_M
+            for p in added.values()
+        )
