@@ -16,6 +16,7 @@ publisher that falls behind slows the simulation down instead of piling up ticks
 from __future__ import annotations
 
 import logging
+import threading
 from collections.abc import Callable, Mapping
 from functools import partial
 from typing import Any
@@ -93,6 +94,10 @@ class FleetAdapter:
         #: (the roster's robots, the records, the records of those robots in order): see _list_records
         self._list_cache: tuple[object, dict[str, RobotRecord], list[RobotRecord]] | None = None
         self._list_encoder = RobotListEncoder()
+        #: spawns answered at once whose robots the publisher announced then, by namespace: their
+        #: Spawned events (and a Deleted event of that name before them) leave the publisher be
+        self._announced: dict[str, int] = {}
+        self._at_once = threading.Lock()  # spawns and deletes answered at once: answered and announced in order
         spec = engine.setup.lidar
         self.spec = spec
         self._world_info = convert.world_info(engine.setup.world)
@@ -122,13 +127,14 @@ class FleetAdapter:
             else:
                 _answer(pending, self._robot_list())
             return
-        at_once = self.engine.answer_at_once(request)
+        if isinstance(request, (SpawnRequest, DeleteRequest)):
+            with self._at_once:
+                at_once = self.engine.answer_at_once(request)
+                if isinstance(at_once, RobotState):
+                    self._announce_at_once(request, at_once)
+        else:
+            at_once = self.engine.answer_at_once(request)
         if at_once is not None:
-            if isinstance(request, DeleteRequest) and isinstance(at_once, RobotState):
-                # gone for its subscribers from this answer on, though the simulation thread
-                # deletes it before its next tick: the tick being computed leaves it out
-                at = self.engine.deleted_at()
-                self.outbox.put_urgent(partial(self.publisher.remove_robot, at_once.namespace, at))
             _answer(pending, at_once if isinstance(at_once, FleetError) else self._message(at_once))
             return
         lane = _lane(request)
@@ -148,6 +154,17 @@ class FleetAdapter:
             self.engine.submit(request, deliver)
         except FleetError as e:  # busy: refused on the spot, never queued behind the flood
             pending.error(e)
+
+    def _announce_at_once(self, request: SpawnRequest | DeleteRequest, state: RobotState) -> None:
+        """A spawn or delete answered at once (simd/engine/promises.py) is true for subscribers
+        from its answer on, as one served between ticks: a spawned robot's token declared and
+        its first odometry put; a deleted one's gone, and left out of the tick being computed."""
+        ns = state.namespace
+        if isinstance(request, SpawnRequest):
+            self._announced[ns] = self._announced.get(ns, 0) + 1
+            self.outbox.put_ordered(partial(self.publisher.add_robot, state, self.engine.known().time), ns)
+        else:
+            self.outbox.put_urgent(partial(self.publisher.remove_robot, ns, self.engine.deleted_at()))
 
     def _robot_list(self) -> RobotList:
         """The robot list from the engine's latest status (simd/engine/status.py), on the
@@ -295,15 +312,23 @@ class FleetAdapter:
         if isinstance(event, Spawned):
             robot = event.robot
             self._records = {**self._records, robot.namespace: convert.robot_record(robot, self.keys, self.daemon_id)}
-            # a new robot's first odometry need not wait for ticks that do not name it
-            self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time), robot.namespace)
+            with self._at_once:
+                announced = self._announced.pop(robot.namespace, 0)
+                if announced > 1:
+                    self._announced[robot.namespace] = announced - 1
+            if not announced:  # (else declared with its answer)
+                # a new robot's first odometry need not wait for ticks that do not name it
+                self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time), robot.namespace)
         elif isinstance(event, Deleted):
             self._records = {k: v for k, v in self._records.items() if k != event.robot.namespace}
             # behind the ticks queued before it: they still name the robot
             # at once, so that the delete is answered at once; the ticks queued before it leave
             # the robot out, and its encoders are forgotten after them
             ns = event.robot.namespace
-            self.outbox.put_urgent(partial(self.publisher.remove_robot, ns, event.at))
+            with self._at_once:
+                renewed = ns in self._announced  # a robot of that name answered at once since: its own now
+            if not renewed:
+                self.outbox.put_urgent(partial(self.publisher.remove_robot, ns, event.at))
             self.outbox.put(partial(self.publisher.forget, ns), wait=False)
             self.navigation.forget(event.robot.namespace)
         elif isinstance(event, Navigation):
