@@ -218,7 +218,8 @@ class AnsweredAtOnce:
                     self._promises.made()
 
     def _start_tick(self) -> bool:
-        """Whether the loop may start a tick now (no pause asked): then it is being computed."""
-        with self._gate:
-            self._ticking = not self._control
+        """Whether the loop may start a tick now (no pause asked, nothing queued): then it is
+        being computed."""
+        with self._gate:  # a request queued before this is served first (a promise: before the tick)
+            self._ticking = not self._control and self._inbox.empty()
             return self._ticking
