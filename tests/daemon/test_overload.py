@@ -278,13 +278,15 @@ def test_a_spawn_a_delete_and_a_resume_never_wait_for_a_tick_however_long_it_tak
                 took["delete"] = time.monotonic() - t0
                 assert gone.name == "r0" and [r.name for r in c.robots()] == ["r1", "new"]
                 assert "r0" not in c.alive()  # its token went with the answer
+                back = c.spawn("r0", -2.0, 2.0)  # the name again, before its delete is made
+                assert back.pose.x == -2.0 and "r0" in c.alive()
                 t0 = time.monotonic()
                 assert c.pause().paused and not c.resume().paused
                 took["pause and resume"] = time.monotonic() - t0
                 assert all(s < 1.5 for s in took.values()), took
-                made = wait_until(lambda: [r.name for r in list(sim.robots.robots)] == ["r1", "new"], 15.0)
+                made = wait_until(lambda: [r.name for r in list(sim.robots.robots)] == ["r1", "new", "r0"], 15.0)
                 assert made and not engine.paused  # by the simulation, before its next tick
-                assert c.alive() == ["new", "r1"]  # its events told the publisher nothing twice
+                assert c.alive() == ["new", "r0", "r1"]  # the old r0's delete left the new r0's token be
         finally:
             engine.stop()
             thread.join(15.0)
