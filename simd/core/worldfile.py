@@ -35,6 +35,9 @@ _MIN_TURN_SIN = 1e-9
 
 PositiveFloat = Annotated[float, msgspec.Meta(gt=0.0)]
 NonEmptyStr = Annotated[str, msgspec.Meta(min_length=1)]
+#: the range ``nav_cell`` (and simd --nav-cell) may take, metres
+NAV_CELL_RANGE_M = (0.2, 5.0)
+NavCell = Annotated[float, msgspec.Meta(ge=NAV_CELL_RANGE_M[0], le=NAV_CELL_RANGE_M[1])]
 
 
 class WorldFileError(FileFormatError):
@@ -106,6 +109,7 @@ class WorldFile(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only
     bounds: Bounds
     default_spawn: Spawn = msgspec.field(default_factory=Spawn)
     obstacles: list[Obstacle] = msgspec.field(default_factory=list)
+    nav_cell: NavCell | None = None
 
 
 # --- output ---------------------------------------------------------------------------------
@@ -127,6 +131,9 @@ class WorldGeometry:
     default_spawn: tuple[float, float, float]
     polygons: tuple[FloatArray, ...]
     circles: FloatArray
+    #: the cells navigation lays over this world for its traffic (m) when its robots fit in
+    #: them (bigger robots get bigger cells); None: as small as the robots fit in
+    nav_cell: float | None = None
 
     def segments(self) -> FloatArray:
         """Every polygon edge as (x0, y0, x1, y1), the form a vectorised ray caster wants."""
@@ -307,4 +314,5 @@ def _build(world: WorldFile, source: str) -> WorldGeometry:
         default_spawn=(s.x, s.y, s.yaw),
         polygons=tuple(polygons),
         circles=circle_array,
+        nav_cell=world.nav_cell,
     )

@@ -150,9 +150,11 @@ class Navigator:
     def floor(self) -> Floor:
         if self._floor is None:
             # cells one robot wide: of the map's size on a grid map, else for the largest
-            # model in the world (a fleet of burgers gets smaller cells than one with waffles)
+            # model in the world (a fleet of burgers gets smaller cells than one with waffles),
+            # or the size the world file asks for if that is larger (cells that fit its layout)
             size = self.config.cell or max(
-                cell_size_for(m) for m in [_BURGER, *(r.model for r in self.robots.values())]
+                self.world.nav_cell or 0.0,
+                *(cell_size_for(m) for m in [_BURGER, *(r.model for r in self.robots.values())]),
             )
             self._floor = Floor(self.world, size, None if self.config.lanes else self.costmap)
             log.info("navigation: %s", self._floor.describe())

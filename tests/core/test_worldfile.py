@@ -212,6 +212,15 @@ def test_world_from_dict_reports_the_given_source() -> None:
     assert info.value.location == "$.obstacles[0].radius"
 
 
+def test_nav_cell_is_the_world_files_or_none() -> None:
+    """A world may name the size of navigation's cells (turtlebot3_world: three between two
+    pillars); without it, none (navigation sizes them for the robots)."""
+    assert load_world("turtlebot3_world").nav_cell == pytest.approx(1.1 / 3, abs=1e-4)
+    assert load_world("empty").nav_cell is None
+    bounds = {"x_min": -1, "x_max": 1, "y_min": -1, "y_max": 1}
+    assert world_from_dict({"name": "w", "bounds": bounds, "nav_cell": 0.4}).nav_cell == 0.4
+
+
 def test_geometry_is_read_only() -> None:
     world = load_world("turtlebot3_world")
     with pytest.raises(ValueError):
@@ -348,6 +357,9 @@ BAD_FILES = [
         "$.default_spawn",
         "spawn point (6.0, 0.0) is outside the bounds",
     ),
+    ("nav_cell too small", HEADER + "nav_cell: 0.1\n", "$.nav_cell", ">= 0.2"),
+    ("nav_cell too large", HEADER + "nav_cell: 6\n", "$.nav_cell", "<= 5.0"),
+    ("nav_cell not a number", HEADER + "nav_cell: wide\n", "$.nav_cell", "Expected `float | null`"),
     ("missing name", "bounds: {x_min: 0, x_max: 1, y_min: 0, y_max: 1}\n", "$", "`name`"),
     ("empty name", HEADER.replace("name: bad", "name: ''"), "$.name", "length >= 1"),
     ("empty file", "", "$", "Expected `object`, got `null`"),

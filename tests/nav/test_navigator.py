@@ -16,9 +16,11 @@ from hypothesis import strategies as st
 from protocol.control import SpawnRequest
 from protocol.navigation import NavigateRequest, NavigationResult
 from simd.core.mapworld import world_from_movingai
+from simd.core.models import MODELS
 from simd.core.movingai import parse_movingai
 from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import WorldGeometry, world_from_dict
+from simd.nav.cells import cell_size_for
 from simd.nav.navigator import PATIENCE_S, NavConfig, Navigator
 
 CELL = 0.5
@@ -118,6 +120,25 @@ def test_two_robots_swap_ends_of_a_lane_one_cell_wide() -> None:
     assert closest > TOUCH_M
 
 
+def test_the_cells_are_the_world_files_when_the_robots_fit_in_them() -> None:
+    """A world file's ``nav_cell`` sizes the cells of its open floor (robots still reach their
+    goals on them); a model that needs larger cells gets its own, and ``--nav-cell`` wins."""
+    bounds = {"x_min": -3.0, "x_max": 3.0, "y_min": -3.0, "y_max": 3.0}
+    world = world_from_dict({"name": "sized", "bounds": bounds, "nav_cell": 0.4})
+    robots: list[Robot] = [("a", (-2.0, 0.0, 0.0), (2.0, 0.5)), ("b", (2.0, 0.0, math.pi), (-2.0, -0.5))]
+    results, closest, sim = drive(world, robots, 60.0)
+    reached_all(results, robots, sim)
+    assert closest > TOUCH_M
+    lidar, table = sim.config.lidar, sim.robots
+    assert Navigator(world, lidar, table).floor.graph.size == 0.4
+    assert Navigator(world, lidar, table, NavConfig(cell=0.5)).floor.graph.size == 0.5
+    sim = Simulation(world, SimConfig(seed=0))
+    sim.spawn(SpawnRequest(name="w", model="waffle", x=0.0, y=0.0, yaw=0.0))
+    nav = Navigator(world, sim.config.lidar, sim.robots)
+    nav.goal("w", MODELS["waffle"], NavigateRequest(x=1.5, y=0.0), sim.time)
+    assert nav.floor.graph.size == cell_size_for(MODELS["waffle"]) > 0.4
+
+
 def test_a_goal_walled_off_fails_with_no_path() -> None:
     world = world_from_dict(
         {
@@ -206,7 +227,6 @@ def test_a_path_exists_exactly_when_a_flood_fill_finds_one(
 def test_the_told_path_is_where_the_robot_goes() -> None:
     """In a crowded warehouse robots make way and go round each other: whatever the traffic
     makes of its way, a robot stays near the last path it told (P/<ns>/plan)."""
-    from simd.core.models import MODELS
     from worlds.warehouse import warehouse_for_robots
 
     text = warehouse_for_robots(20)
@@ -268,7 +288,6 @@ def test_ten_robots_in_turtlebot3_world_keep_reaching_goals() -> None:
     one ends): no robot hangs on a goal (one that gets nowhere ends ``blocked``, it does not
     drive on forever), and every robot gets somewhere again and again."""
     from bench.nav_crowd import goal_points
-    from simd.core.models import MODELS
     from simd.core.worldfile import load_world
 
     world = load_world("turtlebot3_world")
