@@ -52,9 +52,7 @@ class RosCommandIntake:
                 self._decoders[(dds_type_name(typename), h)] = decoder
         self.dropped = 0
         self._reported: set[str] = set()
-        self._sub = p.session.declare_subscriber(
-            f"{p.domain}/*/cmd_vel/*/*", zenoh.handlers.RingChannel(CMD_VEL_RING)
-        )
+        self._sub = p.session.declare_subscriber(f"{p.domain}/*/cmd_vel/*/*", zenoh.handlers.RingChannel(CMD_VEL_RING))
 
     def _command(self, sample: zenoh.Sample) -> tuple[str, tuple[float, float]] | None:
         """The namespace and command of a sample; None (counted) for anything else."""
