@@ -15,10 +15,12 @@ publisher that falls behind slows the simulation down instead of piling up ticks
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import operator
 from collections.abc import Callable, Mapping
 from functools import partial
-from typing import Any
+from typing import Any, cast
 
 import msgspec
 import numpy as np
@@ -65,6 +67,7 @@ from simd.wire import convert
 from simd.wire.list_codec import RobotListEncoder
 
 log = logging.getLogger(__name__)
+_namespace = operator.attrgetter("namespace")
 
 
 class FleetAdapter:
@@ -159,20 +162,23 @@ class FleetAdapter:
 
     def _list_records(self, roster: Roster) -> list[RobotRecord]:
         """Each robot's record as its spawn made it, in the roster's order (a robot deleted a
-        moment ago: as it was); a new list only when the roster or the records change."""
+        moment ago: as it was); a new list only when the roster or the records change, made
+        with the records looked up in C (``map``), not a Python loop over the fleet."""
         cached = self._list_cache
         if cached is not None and cached[0] is roster.robots and cached[1] is self._records:
             return cached[2]
         records = self._records
-        listed = []
-        for robot in roster.robots:
-            record = records.get(robot.namespace)
-            if record is None:
+        listed: list[RobotRecord | None] = list(map(records.get, map(_namespace, roster.robots)))
+        k = -1
+        with contextlib.suppress(ValueError):  # no (other) robot without a record
+            while True:
+                k = listed.index(None, k + 1)
+                robot = roster.robots[k]
                 state = RobotState(robot.name, robot.namespace, robot.model, 0.0, 0.0, 0.0, 0.0, 0.0, robot.spawn_pose)
-                record = convert.robot_record(state, self.keys, self.daemon_id)
-            listed.append(record)
-        self._list_cache = (roster.robots, records, listed)
-        return listed
+                listed[k] = convert.robot_record(state, self.keys, self.daemon_id)
+        found = cast("list[RobotRecord]", listed)
+        self._list_cache = (roster.robots, records, found)
+        return found
 
     def own_namespaces(self) -> set[str]:
         """The names and namespaces of this daemon's robots (a copy, for other threads)."""
@@ -293,7 +299,9 @@ class FleetAdapter:
             # a new robot's first odometry need not wait for ticks that do not name it
             self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time), robot.namespace)
         elif isinstance(event, Deleted):
-            self._records = {k: v for k, v in self._records.items() if k != event.robot.namespace}
+            records = dict(self._records)  # (a copy in C: a comprehension took ~1 ms at 20 000 robots)
+            records.pop(event.robot.namespace, None)
+            self._records = records
             # behind the ticks queued before it: they still name the robot
             # at once, so that the delete is answered at once; the ticks queued before it leave
             # the robot out, and its encoders are forgotten after them
