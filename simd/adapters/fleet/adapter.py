@@ -15,15 +15,14 @@ publisher that falls behind slows the simulation down instead of piling up ticks
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import operator
 from collections.abc import Callable, Mapping
 from functools import partial
 from typing import Any, cast
 
 import msgspec
 import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from protocol.codec import encode
@@ -63,11 +62,10 @@ from simd.engine.outbox import Outbox
 from simd.engine.ports import Deleted, Event, Navigation, Result, Spawned, StepResult
 from simd.engine.ports import RobotList as EngineRobotList
 from simd.engine.status import Roster
-from simd.wire import convert
+from simd.wire import carry, convert
 from simd.wire.list_codec import RobotListEncoder
 
 log = logging.getLogger(__name__)
-_namespace = operator.attrgetter("namespace")
 
 
 class FleetAdapter:
@@ -93,8 +91,8 @@ class FleetAdapter:
         self._own: set[str] = set()  # names and namespaces of this daemon's robots (sim thread writes)
         #: each robot's record as its spawn made it (sim thread replaces the dict; lists read it)
         self._records: dict[str, RobotRecord] = {}
-        #: (the roster's robots, the records, the records of those robots in order): see _list_records
-        self._list_cache: tuple[object, dict[str, RobotRecord], list[RobotRecord]] | None = None
+        #: (the roster's robots, their identities, their records in order): see _list_records
+        self._list_cache: tuple[object, npt.NDArray[np.uint64], list[RobotRecord]] | None = None
         self._list_encoder = RobotListEncoder()
         spec = engine.setup.lidar
         self.spec = spec
@@ -162,23 +160,31 @@ class FleetAdapter:
 
     def _list_records(self, roster: Roster) -> list[RobotRecord]:
         """Each robot's record as its spawn made it, in the roster's order (a robot deleted a
-        moment ago: as it was); a new list only when the roster or the records change, made
-        with the records looked up in C (``map``), not a Python loop over the fleet."""
+        moment ago: as it was). A new list only when the roster changes, made from the last
+        one: the robots both rosters have keep their records, copied over in runs (found by
+        identity, simd/wire/carry.py), and only the others are looked up, where looking up
+        20 000 robots took ~5 ms. A robot's record does not change while it lives."""
         cached = self._list_cache
-        if cached is not None and cached[0] is roster.robots and cached[1] is self._records:
+        if cached is not None and cached[0] is roster.robots:
             return cached[2]
+        robots = roster.robots
+        ids = carry.identities(robots)
+        _, before_ids, before = cached if cached is not None else ([], carry.identities([]), [])
+        source = carry.sources(before_ids, ids)
+        listed: list[RobotRecord | None] = [None] * len(robots)
+        for first, count, at in carry.runs(source):
+            listed[first : first + count] = before[at : at + count]
         records = self._records
-        listed: list[RobotRecord | None] = list(map(records.get, map(_namespace, roster.robots)))
-        k = -1
-        with contextlib.suppress(ValueError):  # no (other) robot without a record
-            while True:
-                k = listed.index(None, k + 1)
-                robot = roster.robots[k]
+        for k in np.flatnonzero(source < 0).tolist():
+            robot = robots[k]
+            record = records.get(robot.namespace)
+            if record is None:
                 state = RobotState(robot.name, robot.namespace, robot.model, 0.0, 0.0, 0.0, 0.0, 0.0, robot.spawn_pose)
-                listed[k] = convert.robot_record(state, self.keys, self.daemon_id)
-        found = cast("list[RobotRecord]", listed)
-        self._list_cache = (roster.robots, records, found)
-        return found
+                record = convert.robot_record(state, self.keys, self.daemon_id)
+            listed[k] = record
+        made = cast("list[RobotRecord]", listed)
+        self._list_cache = (robots, ids, made)  # the robots held: their identities stay theirs
+        return made
 
     def own_namespaces(self) -> set[str]:
         """The names and namespaces of this daemon's robots (a copy, for other threads)."""
