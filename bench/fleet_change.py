@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import time
 from collections.abc import Callable
 
@@ -27,6 +28,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--robots", type=int, default=20000)
     ap.add_argument("--rounds", type=int, default=10)
     args = ap.parse_args(argv)
+    sys.setswitchinterval(0.001)  # as simd does (simd/cli.py): the threads' GIL handoffs as in the daemon
 
     import zenoh
 

@@ -89,7 +89,7 @@ class FleetAdapter:
         #: answered by the robot's daemon (docs/scale-out.md)
         self.members = members
         self._own: set[str] = set()  # names and namespaces of this daemon's robots (sim thread writes)
-        #: each robot's record as its spawn made it (sim thread replaces the dict; lists read it)
+        #: each robot's record as its spawn made it (sim thread writes; lists read it)
         self._records: dict[str, RobotRecord] = {}
         #: (the roster's robots, their identities, their records in order): see _list_records
         self._list_cache: tuple[object, npt.NDArray[np.uint64], list[RobotRecord]] | None = None
@@ -292,22 +292,22 @@ class FleetAdapter:
         self.outbox.put(partial(self.publisher.publish_tick, snapshot))
 
     def on_event(self, event: Event) -> None:
-        # a new set each time, never changed in place: other threads copy it (own_namespaces)
+        # _own and _records are changed in place, by this thread only: other threads test
+        # membership, get one record or copy the set whole (each one C call under the GIL, never
+        # half a change). Copying them at every change took ~2 ms of a spawn at 20 000 robots.
         if isinstance(event, Spawned):
-            self._own = self._own | {event.robot.name, event.robot.namespace}
+            self._own.update((event.robot.name, event.robot.namespace))
         elif isinstance(event, Deleted):
-            self._own = self._own - {event.robot.name, event.robot.namespace}
+            self._own.difference_update((event.robot.name, event.robot.namespace))
             if self.members is not None:
                 self.members.left(event.robot.namespace)
         if isinstance(event, Spawned):
             robot = event.robot
-            self._records = {**self._records, robot.namespace: convert.robot_record(robot, self.keys, self.daemon_id)}
+            self._records[robot.namespace] = convert.robot_record(robot, self.keys, self.daemon_id)
             # a new robot's first odometry need not wait for ticks that do not name it
             self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time), robot.namespace)
         elif isinstance(event, Deleted):
-            records = dict(self._records)  # (a copy in C: a comprehension took ~1 ms at 20 000 robots)
-            records.pop(event.robot.namespace, None)
-            self._records = records
+            self._records.pop(event.robot.namespace, None)
             # behind the ticks queued before it: they still name the robot
             # at once, so that the delete is answered at once; the ticks queued before it leave
             # the robot out, and its encoders are forgotten after them
