@@ -13,6 +13,7 @@ import pymunk
 import pymunk.batch
 
 from fleetcommon.arrays import F64
+from simd.core.carry import positions
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 
@@ -206,12 +207,12 @@ class Physics:
             # delete at 20 000 robots, ~1 ms so
             of_body = self._rid_of_body
             robot_bodies = np.fromiter(of_body.keys(), dtype=np.uintp, count=len(of_body))
-            row_of_robot = _positions(rids, np.fromiter(of_body.values(), dtype=np.int64, count=len(of_body)))
-            rows = _through(_positions(robot_bodies, ids), row_of_robot)
+            row_of_robot = positions(rids, np.fromiter(of_body.values(), dtype=np.int64, count=len(of_body)))
+            rows = _through(positions(robot_bodies, ids), row_of_robot)
             key_of, order = self._ghost_key_of_body, self._ghost_order
             ghost_bodies = np.fromiter(key_of.keys(), dtype=np.uintp, count=len(key_of))
             ghost_index = np.array([order.get(key, -1) for key in key_of.values()], dtype=np.int64)
-            self._ghost_rows = _through(_positions(ghost_bodies, ids), ghost_index)
+            self._ghost_rows = _through(positions(ghost_bodies, ids), ghost_index)
             self._rows_cache = (rows, rows >= 0)
             self._rows_n = len(rids)
             self._n_iter = len(ids)
@@ -282,15 +283,6 @@ class Physics:
         a[r] = data[ok, 2]
         return x, y, a
 
-
-def _positions(table: npt.NDArray[np.generic], queries: npt.NDArray[np.generic]) -> npt.NDArray[np.int64]:
-    """For each of ``queries``, its index in ``table`` (values all distinct), -1 where it is not."""
-    if not len(table):
-        return np.full(len(queries), -1, dtype=np.int64)
-    order = np.argsort(table, kind="stable")
-    ordered = table[order]
-    at = np.minimum(np.searchsorted(ordered, queries), len(table) - 1)
-    return np.where(ordered[at] == queries, order[at], -1).astype(np.int64, copy=False)
 
 
 def _through(index: npt.NDArray[np.int64], values: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:

@@ -30,7 +30,7 @@ import numpy.typing as npt
 from fleetcommon.arrays import F64
 from protocol.control import Pose2D, RobotList, RobotRecord
 from protocol.messages import Time
-from simd.wire import carry
+from simd.core import carry
 
 _encoder = msgspec.msgpack.Encoder()
 #: Values that cannot occur in real data, one per patched field: pose x, y, yaw, linear, angular.
@@ -91,7 +91,7 @@ class _Layout:
         object), the others encoded."""
         n = len(records)
         ids = carry.identities(records)
-        source = carry.sources(self.identities, ids)
+        source = carry.positions(self.identities, ids)
         found = source >= 0
         lengths = np.zeros(n, dtype=np.int64)
         marks = np.zeros((n, 5), dtype=np.int64)

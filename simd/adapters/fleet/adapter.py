@@ -55,6 +55,7 @@ from simd.adapters.fleet.navigation import NavigationKeys
 from simd.adapters.fleet.presence import Members
 from simd.adapters.fleet.publisher import Publisher
 from simd.adapters.zenoh_entities import undeclare_all
+from simd.core import carry
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.engine import Engine
@@ -62,7 +63,7 @@ from simd.engine.outbox import Outbox
 from simd.engine.ports import Deleted, Event, Navigation, Result, Spawned, StepResult
 from simd.engine.ports import RobotList as EngineRobotList
 from simd.engine.status import Roster
-from simd.wire import carry, convert
+from simd.wire import convert
 from simd.wire.list_codec import RobotListEncoder
 
 log = logging.getLogger(__name__)
@@ -162,7 +163,7 @@ class FleetAdapter:
         """Each robot's record as its spawn made it, in the roster's order (a robot deleted a
         moment ago: as it was). A new list only when the roster changes, made from the last
         one: the robots both rosters have keep their records, copied over in runs (found by
-        identity, simd/wire/carry.py), and only the others are looked up, where looking up
+        identity, simd/core/carry.py), and only the others are looked up, where looking up
         20 000 robots took ~5 ms. A robot's record does not change while it lives."""
         cached = self._list_cache
         if cached is not None and cached[0] is roster.robots:
@@ -170,7 +171,7 @@ class FleetAdapter:
         robots = roster.robots
         ids = carry.identities(robots)
         _, before_ids, before = cached if cached is not None else ([], carry.identities([]), [])
-        source = carry.sources(before_ids, ids)
+        source = carry.positions(before_ids, ids)
         listed: list[RobotRecord | None] = [None] * len(robots)
         for first, count, at in carry.runs(source):
             listed[first : first + count] = before[at : at + count]
