@@ -15,6 +15,7 @@ import pymunk
 import pymunk.batch
 
 from fleetcommon.arrays import F64
+from simd.core.carry import positions
 from simd.core.models import RobotModel
 from simd.core.worldfile import WorldGeometry
 
@@ -176,12 +177,16 @@ class Physics:
             buf.clear()
             pymunk.batch.get_space_bodies(self.space, pymunk.batch.BodyFields.BODY_ID, buf)
             ids = np.frombuffer(buf.int_buf(), dtype=np.uintp)
-            row_of_rid = {rid: row for row, rid in enumerate(rids.tolist())}
-            rid_of_body = self._rid_of_body
-            id_list = ids.tolist()
-            rows = np.array([row_of_rid.get(rid_of_body.get(i, -1), -1) for i in id_list], dtype=np.int64)
+            # with numpy, not dicts over every body: ~15 ms of Python after each spawn or
+            # delete at 20 000 robots, ~1 ms so
+            of_body = self._rid_of_body
+            robot_bodies = np.fromiter(of_body.keys(), dtype=np.uintp, count=len(of_body))
+            row_of_robot = positions(rids, np.fromiter(of_body.values(), dtype=np.int64, count=len(of_body)))
+            rows = _through(positions(robot_bodies, ids), row_of_robot)
             key_of, order = self._ghost_key_of_body, self._ghost_order
-            self._ghost_rows = np.array([order.get(key_of.get(i, ""), -1) for i in id_list], dtype=np.int64)
+            ghost_bodies = np.fromiter(key_of.keys(), dtype=np.uintp, count=len(key_of))
+            ghost_index = np.array([order.get(key, -1) for key in key_of.values()], dtype=np.int64)
+            self._ghost_rows = _through(positions(ghost_bodies, ids), ghost_index)
             self._rows_cache = (rows, rows >= 0)
             self._rows_n = len(rids)
             self._n_iter = len(ids)
@@ -315,3 +320,10 @@ class Walls:
         if probe is None or probe[0] is not model:
             probe = self._probes[model.name] = (model, *_robot_body(model))
         return next(_overlapping(self.space, probe[1], probe[2], x, y, yaw), None) is not None
+
+
+def _through(index: npt.NDArray[np.int64], values: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """``values[index]``, -1 where ``index`` is -1."""
+    if not len(values):
+        return np.full(len(index), -1, dtype=np.int64)
+    return np.where(index >= 0, values[index], -1)

@@ -153,13 +153,19 @@ class RobotTable:
         where: int | list[int] = rows[0] if len(rows) == 1 else rows  # numpy slices for one row
         for name in self.columns():
             setattr(self, name, np.delete(getattr(self, name), where, axis=0))
-        kept = list(self.robots)  # a new list: whoever holds the old one keeps it whole
+        kept = list(self.robots)  # new lists: whoever holds the old ones keeps them whole
+        namespaces = list(self.namespaces)
         for row in sorted(rows, reverse=True):
             del kept[row]
+            del namespaces[row]
         self.robots = kept
-        self.namespaces = [r.namespace for r in self.robots]
-        self._row_of = {r.namespace: k for k, r in enumerate(self.robots)}
+        self.namespaces = namespaces
+        # only the rows after the first one removed move up: renumbered in C (a comprehension
+        # over every robot took ~4 ms at 20 000 robots)
+        first = min(rows)
         for robot in robots:
+            del self._row_of[robot.namespace]
             del self._by_key[robot.name]
             self._by_key.pop(robot.namespace, None)
+        self._row_of.update(zip(namespaces[first:], range(first, len(namespaces)), strict=True))
         self.generation = next(_generations)

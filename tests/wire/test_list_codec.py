@@ -6,6 +6,8 @@ from __future__ import annotations
 import msgspec
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from protocol.control import Pose2D, RobotList, RobotRecord
 from protocol.keys import Keys
@@ -59,6 +61,43 @@ def test_a_fleet_that_changes_between_lists_is_laid_out_again() -> None:
         columns = [rng.normal(0, 5, len(records)) for _ in range(5)]
         for t in (1.0, 2.0):  # the same layout twice: the second list reuses it
             assert enc.encode(t, records, *columns) == _expected(t, records, columns)
+
+
+#: what happens to the fleet between two lists: a spawn appends a record, a delete takes the one
+#: at a place out, a replaced record is another object (a robot of the same name spawned again,
+#: longer or shorter), a move takes one record elsewhere; a copy is the same records, a new list
+_CHANGES = st.one_of(
+    st.tuples(st.just("spawn"), st.integers(0, 10**6)),
+    st.tuples(st.just("delete"), st.integers(0, 10**6)),
+    st.tuples(st.just("replace"), st.integers(0, 10**6)),
+    st.tuples(st.just("move"), st.integers(0, 10**6)),
+    st.tuples(st.just("copy"), st.just(0)),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(start=st.integers(0, 40), changes=st.lists(st.lists(_CHANGES, max_size=4), max_size=10), seed=st.integers(0, 99))
+def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_encoding(
+    start: int, changes: list[list[tuple[str, int]]], seed: int
+) -> None:
+    enc = RobotListEncoder()
+    rng = np.random.default_rng(seed)
+    pool = iter(_records(400, start=1000))
+    records = _records(start)
+    for t, batch in enumerate([[], *changes]):
+        records = list(records)  # the caller's new list, as the adapter makes one per change
+        for what, at in batch:
+            if what == "spawn":
+                records.append(next(pool))
+            elif records and what == "delete":
+                del records[at % len(records)]
+            elif records and what == "replace":
+                old = records[at % len(records)]
+                records[at % len(records)] = msgspec.structs.replace(old, name=old.name + "y" * (at % 3), daemon="b")
+            elif records and what == "move":
+                records.insert(at % (len(records) + 1), records.pop(at % len(records)))
+        columns = [rng.normal(0, 50, len(records)) for _ in range(5)]
+        assert enc.encode(float(t), records, *columns) == _expected(float(t), records, columns)
 
 
 def test_columns_of_another_length_are_refused() -> None:

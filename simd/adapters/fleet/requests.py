@@ -75,7 +75,7 @@ class Pending:
         finally:
             self.query.drop()
 
-    def ok_encoded(self, payload: bytes) -> None:
+    def ok_encoded(self, payload: bytes | bytearray) -> None:
         """Reply with a message already encoded in this query's format."""
         try:
             self.query.reply(self.key, payload, encoding=media_type(self.fmt))
