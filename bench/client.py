@@ -63,6 +63,19 @@ class Fleet:
             raise RuntimeError(f"clock query failed: {data}")
         return decode(data, Clock)
 
+    def wait_for_daemon(self, timeout: float) -> None:
+        """Until the daemon answers its clock: a session just opened may not know the daemon's
+        queryables yet (a query then has no reply at once)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                self.clock(timeout=2.0)
+                return
+            except RuntimeError:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"simd did not answer within {timeout:g} s") from None
+                time.sleep(0.1)
+
     def spawn_batch(
         self,
         requests: Sequence[Any],

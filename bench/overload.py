@@ -185,6 +185,7 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
             progress.update(f"{label} starting", force=True)
             fleet = Fleet(daemon.endpoint)
             stack.callback(fleet.close)
+            fleet.wait_for_daemon(60.0)
             names = [f"r{i}" for i in range(n)]
             reqs = [spawn_request(nm, *pose) for nm, pose in zip(names, arena.poses, strict=True)]
             results, spawn_s = fleet.spawn_batch(reqs, 64, max(60.0, 0.05 * n),
