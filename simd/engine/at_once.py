@@ -93,11 +93,13 @@ class AnsweredAtOnce:
                 self._waiting += 1
 
     def answer_at_once(self, request: Request | NavigationRequest | PlaceRequest) -> Result | FleetError | None:
-        """The answer to a request that needs nothing of the simulation thread, on the caller's
+        """The answer to a request that need not wait for the simulation thread, on the caller's
         thread, or None (then :meth:`submit` it): the clock and the robot list from what the
-        simulation thread last made known (simd/engine/status.py), the world, and the refusal
-        of a spawn while the robot limit is reached. So looking never waits behind a tick, however
-        long ticks take. Every request answered here has no effect to be ordered after; any
+        simulation thread last made known (simd/engine/status.py), the world, the refusal of a
+        spawn while the robot limit is reached, and, while running, a pause, the resume of a
+        pause not yet served, and a spawn or delete whose answer is certain; those with an
+        effect are queued here all the same, in the order answered (the module docstring). So
+        looking, and changing the fleet, never wait behind a tick, however long ticks take. Any
         thread may call it."""
         if isinstance(request, (ClockRequest, PauseRequest, ResumeRequest)):
             return self._clock_at_once(request)
