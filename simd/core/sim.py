@@ -187,16 +187,21 @@ class Simulation:
         self._check_place(model, x, y, yaw, robots=not robots_may_overlap)
         return name, namespace, model, x, y, yaw
 
+    def outside(self, model: RobotModel, x: float, y: float, yaw: float) -> bool:
+        """Whether the model's outline at this pose leaves the world's bounds (any thread)."""
+        c, s = math.cos(yaw), math.sin(yaw)
+        ox = x + model.outline[:, 0] * c - model.outline[:, 1] * s
+        oy = y + model.outline[:, 0] * s + model.outline[:, 1] * c
+        x0, x1, y0, y1 = self.world.bounds
+        return bool(ox.min() < x0 or ox.max() > x1 or oy.min() < y0 or oy.max() > y1)
+
     def _check_place(
         self, model: RobotModel, x: float, y: float, yaw: float, ignore: int | None = None, robots: bool = True
     ) -> None:
         """Refuse a pose that puts the model outside the world or on a wall or another robot
         (robot ``ignore``, the one being moved, does not count; no robot without ``robots``)."""
-        c, s = math.cos(yaw), math.sin(yaw)
-        ox = x + model.outline[:, 0] * c - model.outline[:, 1] * s
-        oy = y + model.outline[:, 0] * s + model.outline[:, 1] * c
-        x0, x1, y0, y1 = self.world.bounds
-        if ox.min() < x0 or ox.max() > x1 or oy.min() < y0 or oy.max() > y1:
+        if self.outside(model, x, y, yaw):
+            x0, x1, y0, y1 = self.world.bounds
             raise FleetError(
                 ErrorCode.OUT_OF_BOUNDS,
                 f"pose ({x:g}, {y:g}) puts the {model.name} outside the world "

@@ -171,11 +171,7 @@ class Promises:
                added: dict[str, Promise], removed: set[str]) -> bool:  # fmt: skip
         """Whether the footprint at this pose is inside the world, off the walls, and a margin
         clear of every robot's circle that will still be there."""
-        c, s = math.cos(yaw), math.sin(yaw)
-        ox = x + model.outline[:, 0] * c - model.outline[:, 1] * s
-        oy = y + model.outline[:, 0] * s + model.outline[:, 1] * c
-        x0, x1, y0, y1 = self._sim.world.bounds
-        if ox.min() < x0 or ox.max() > x1 or oy.min() < y0 or oy.max() > y1:
+        if self._sim.outside(model, x, y, yaw):
             return False
         if self._walls is None:
             self._walls = Walls(self._sim.world)
