@@ -38,6 +38,7 @@ from protocol.control import (
     Clock,
     DaemonInfo,
     DeleteRequest,
+    ListRequest,
     PackedCommands,
     PackedObservations,
     ResetRequest,
@@ -52,6 +53,7 @@ from protocol.errors import ErrorCode, FleetError
 from protocol.gather import GATHER, Gather, Gathering, merge_lists, merge_steps
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
+from protocol.names import check_name
 from protocol.navigation import (
     DEFAULT_TOLERANCE_M,
     DEFAULT_YAW_TOLERANCE_RAD,
@@ -368,13 +370,27 @@ class FleetClient:
         ``*``): put always, once per goal, where ``P/navigation`` is put only while listened to."""
         return self._on_decoded(self.keys.navigate_result(robot), NavigationResult, callback)
 
-    def robots(self) -> list[RobotRecord]:
-        """Every robot of the fleet, whichever daemon runs it (each daemon lists its own)."""
-        return merge_lists(self._query_all(self.keys.robots, None, RobotList)).robots
+    def robots(self, names: Sequence[str] | None = None) -> list[RobotRecord]:
+        """Every robot of the fleet, whichever daemon runs it (each daemon lists its own); with
+        ``names``, only the robots of those names or namespaces (those that exist)."""
+        request = ListRequest(names=list(names)) if names else None
+        return merge_lists(self._query_all(self.keys.robots, request, RobotList)).robots
+
+    def robots_page(self, after: str = "", limit: int = 1000) -> list[RobotRecord]:
+        """At most ``limit`` robots in name order, those whose name sorts after ``after``:
+        read a big fleet a page at a time (the next page is after the last name of this one;
+        a page shorter than ``limit`` is the last). Protocol/listing.py says why."""
+        request = ListRequest(after=after, limit=limit)
+        return merge_lists(self._query_all(self.keys.robots, request, RobotList), limit).robots
 
     def robot(self, key: str) -> RobotRecord | None:
-        """The record of a robot by name or namespace, or None."""
-        return next((r for r in self.robots() if key in (r.name, r.namespace)), None)
+        """The record of a robot by name or namespace, or None (asked for alone: a daemon
+        older than the ``names`` filter lists every robot, and the one is picked out here)."""
+        try:
+            check_name(key)
+        except FleetError:
+            return None
+        return next((r for r in self.robots([key]) if key in (r.name, r.namespace)), None)
 
     def daemons(self) -> list[DaemonInfo]:
         """Every daemon serving this prefix, by id (each answers ``P/daemons`` for itself)."""

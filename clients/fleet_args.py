@@ -96,7 +96,10 @@ def build_parser(
 
     _add_spawn_arguments(add("spawn", "spawn a robot, or a fleet file"))
     add("delete", "delete robots by name or namespace").add_argument("names", nargs="+", metavar="NAME")
-    add("list", "list the live robots with model, pose and velocity, in name order (burger_2 before burger_10)")
+    listing = add("list", "list the live robots with model, pose and velocity, in name order (burger_2 then burger_10)")
+    listing.add_argument(
+        "names", nargs="*", metavar="NAME", help="only these robots (names or namespaces); exit 1 if one is not there"
+    )
     add("world", "describe the loaded world")
     add("daemons", "list the daemons that serve the fleet (id, world, host, pid, up since)").add_argument(
         "--watch", action="store_true", help="then print a line as each daemon joins or leaves, until Ctrl-C"

@@ -80,11 +80,17 @@ class ResetRequest(msgspec.Struct, kw_only=True):
 
 
 class EmptyRequest(msgspec.Struct, kw_only=True):
-    """Requests that carry nothing (list, world, clock, pause, resume)."""
+    """Requests that carry nothing (world, clock, pause, resume)."""
 
 
-class ListRequest(EmptyRequest, kw_only=True):
-    """``P/robots``."""
+class ListRequest(msgspec.Struct, kw_only=True):
+    """``P/robots``: every robot in spawn order (no field given), only the robots named in
+    ``names`` (by name or namespace; spawn order), or a page: at most ``limit`` robots in name
+    order, those whose name sorts after ``after`` (protocol/listing.py)."""
+
+    names: list[str] = msgspec.field(default_factory=list)
+    after: str = ""
+    limit: int = 0
 
 
 class WorldRequest(EmptyRequest, kw_only=True):

@@ -234,15 +234,19 @@ def _run_delete(client: FleetClient, args: argparse.Namespace, plan: object) -> 
 
 
 def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> int:
-    records = in_list_order(client.robots())
+    records = in_list_order(client.robots(args.names or None))
+    listed = {key for r in records for key in (r.name, r.namespace)}
+    missing = [name for name in args.names if name not in listed]
     if args.json:
         _print_json(records)
-        return EXIT_OK
-    if not records:
+    elif records:
+        print(format_table(records))
+        print("(x, y in m; yaw in rad; v in m/s; w in rad/s)", flush=True)
+    elif not args.names:
         print("no robots; spawn one with: fleet spawn tb3_0 -2 -0.5", flush=True)
-        return EXIT_OK
-    print(format_table(records))
-    print("(x, y in m; yaw in rad; v in m/s; w in rad/s)", flush=True)
+    if missing:
+        print(f"fleet: no robot named {', '.join(missing)}", file=sys.stderr, flush=True)
+        return EXIT_REFUSED
     return EXIT_OK
 
 

@@ -22,6 +22,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from protocol import listing
 from protocol.control import (
     Clock,
     ClockRequest,
@@ -128,7 +129,7 @@ class Engine(CommandIntake, AnsweredAtOnce, ServedHere):
         self._handlers: dict[type[Any], Callable[[Any, Reply], Result | None]] = {
             SpawnRequest: self._spawn,
             DeleteRequest: self._delete,
-            ListRequest: lambda req, reply: RobotList(self.sim.time, self.sim.states()),
+            ListRequest: lambda req, reply: RobotList(self.sim.time, _listed(self.sim.states(), req)),
             WorldRequest: lambda req, reply: self.sim.world,
             ClockRequest: lambda req, reply: self.clock(),
             PauseRequest: self._pause,
@@ -496,3 +497,12 @@ def _send(reply: Reply, result: Result | FleetError) -> None:
         reply(result)
     except Exception:
         log.exception("a reply failed")
+
+
+def _listed(states: list[RobotState], request: ListRequest) -> list[RobotState]:
+    """The robots a list request asks for (protocol/listing.py): all, the named, or a page."""
+    listing.check(request)
+    if listing.whole(request):
+        return states
+    index = listing.NameIndex([s.name for s in states], [s.namespace for s in states])
+    return [states[k] for k in index.rows(request)]

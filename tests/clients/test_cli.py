@@ -136,6 +136,14 @@ def test_list_table_json_and_delete(daemon: Daemon) -> None:
     records = msgspec.json.decode(p.stdout, type=list[RobotRecord])
     assert sorted(r.namespace for r in records) == ["TB3_2", "tb3_0"]
 
+    p = fleet("list", "TB3_2", "-e", ep)  # only the robots named
+    assert p.returncode == 0, p.stderr
+    assert [row.split()[0] for row in lines(p.stdout)[1:-1]] == ["burger_2"]
+    p = fleet("list", "tb3_0", "nope", "-e", ep)  # the ones there, and one line for the one not
+    assert p.returncode == 1
+    assert [row.split()[0] for row in lines(p.stdout)[1:-1]] == ["tb3_0"]
+    assert lines(p.stderr) == ["fleet: no robot named nope"]
+
     p = fleet("delete", "tb3_0", "TB3_2", "-e", ep)
     assert p.returncode == 0, p.stderr
     assert "deleted tb3_0" in p.stdout and "deleted burger_2 (namespace TB3_2" in p.stdout

@@ -228,6 +228,36 @@ def test_delete_list_and_liveliness(daemon: Daemon) -> None:
     assert c.wait_odom("a").pose.pose.position.x == pytest.approx(-2.0)
 
 
+def test_a_list_of_named_robots_and_a_fleet_read_page_by_page(daemon: Daemon) -> None:
+    c = daemon.client()
+    c.pause()  # the poses stand still: the lists compare whole
+    spawned = {"r_c": (-2.0, -0.5), "r_a": (0.5, -2.0), "r_e": (2.0, 0.5), "r_b": (-0.5, 2.0), "r_d": (1.5, -1.0)}
+    for name, (x, y) in spawned.items():
+        c.spawn(name, x, y, namespace=f"ns_{name}" if name == "r_e" else "")
+    everyone = c.robots()
+    assert [r.name for r in everyone] == list(spawned)  # spawn order
+    # named (by name or namespace; spawn order), the absent left out
+    assert [r.name for r in c.robots(["r_d", "ns_r_e", "nobody", "r_c"])] == ["r_c", "r_e", "r_d"]
+    assert c.robot("ns_r_e") == everyone[2] and c.robot("nobody") is None and c.robot("not a name") is None
+    # pages in name order, each after the last name of the one before; the same records
+    pages = [c.robots_page(limit=2), c.robots_page("r_b", 2), c.robots_page("r_d", 2)]
+    assert [[r.name for r in p] for p in pages] == [["r_a", "r_b"], ["r_c", "r_d"], ["r_e"]]
+    assert sorted((r for p in pages for r in p), key=lambda r: r.name) == sorted(everyone, key=lambda r: r.name)
+    with raw_session(daemon.endpoint) as s:  # JSON, as a person asks with zenoh-cli
+        ok, err = get_json(s, "fleet/robots", {"after": "r_a", "limit": 1})
+        assert err is None and [r["name"] for r in ok["robots"]] == ["r_b"]
+        refused = [
+            ({"limit": -1}, "invalid_value", "limit"),
+            ({"names": ["a b"]}, "invalid_name", "names"),
+            ({"after": "*"}, "invalid_name", "after"),
+            ({"limit": "x"}, "malformed", "limit"),
+        ]
+        for body, code, field in refused:
+            ok, err = get_json(s, "fleet/robots", body)
+            assert ok is None and err["code"] == code and err.get("field") == field, (body, err)
+    assert c.robots() == everyone  # refused, and nothing changed
+
+
 def test_world_and_clock(daemon: Daemon) -> None:
     c = daemon.client()
     w = c.world()

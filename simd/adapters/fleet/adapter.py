@@ -26,6 +26,7 @@ import numpy as np
 import numpy.typing as npt
 import zenoh
 
+from protocol import listing
 from protocol.codec import encode
 from protocol.control import (
     Clock,
@@ -93,6 +94,8 @@ class FleetAdapter:
         self._own: set[str] = set()  # names and namespaces of this daemon's robots (sim thread writes)
         #: each robot's record as its spawn made it (sim thread writes; lists read it)
         self._records: dict[str, RobotRecord] = {}
+        #: (the roster's robots, their index by name): see _name_index
+        self._names_cache: tuple[object, listing.NameIndex] | None = None
         #: (the roster's robots, their identities, their records in order): see _list_records
         self._list_cache: tuple[object, npt.NDArray[np.uint64], list[RobotRecord]] | None = None
         self._list_encoder = RobotListEncoder()
@@ -122,12 +125,17 @@ class FleetAdapter:
             if isinstance(request, StepRequest):
                 request = self._for_here(request)
         if isinstance(request, ListRequest):  # looking, or a refusal: answered here, never behind a tick
-            if pending.fmt == "msgpack":
+            try:
+                listing.check(request)
+            except FleetError as e:
+                pending.error(e)
+                return
+            if pending.fmt == "msgpack" and listing.whole(request):
                 r = self.engine.roster_now()
                 pending.ok_encoded(self._list_encoder.encode(r.time, self._list_records(r), r.x, r.y, r.yaw,
                                                              r.linear, r.angular))  # fmt: skip
             else:
-                _answer(pending, self._robot_list())
+                _answer(pending, self._robot_list(request))
             return
         if isinstance(request, (SpawnRequest, DeleteRequest)):
             with self._at_once:
@@ -173,18 +181,31 @@ class FleetAdapter:
         else:
             self.outbox.put_urgent(partial(self.publisher.remove_robot, ns, self.engine.deleted_at(), publishers=False))
 
-    def _robot_list(self) -> RobotList:
-        """The robot list from the engine's latest status (simd/engine/status.py), on the
-        query's thread: each robot's record is kept from its spawn, with the pose and twist of
-        now put in. What a JSON list is made of; MessagePack is written from byte templates of
-        the same records (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60)."""
+    def _robot_list(self, request: ListRequest) -> RobotList:
+        """The robots a list request asks for (protocol/listing.py) from the engine's latest
+        status (simd/engine/status.py), on the query's thread: each robot's record is kept from
+        its spawn, with the pose and twist of now put in. What a JSON list and a page are made
+        of; the whole list in MessagePack is written from byte templates of the same records
+        (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60)."""
         roster = self.engine.roster_now()
+        records = self._list_records(roster)
+        rows = range(len(records)) if listing.whole(request) else self._name_index(roster).rows(request)
+        x, y, yaw, v, w = (roster.x, roster.y, roster.yaw, roster.linear, roster.angular)
         replace = msgspec.structs.replace
-        columns = (roster.x.tolist(), roster.y.tolist(), roster.yaw.tolist(), roster.linear.tolist(),
-                   roster.angular.tolist())  # fmt: skip
-        robots = [replace(record, pose=Pose2D(x=x, y=y, yaw=yaw), linear_velocity=v, angular_velocity=w)
-                  for record, x, y, yaw, v, w in zip(self._list_records(roster), *columns, strict=True)]  # fmt: skip
+        robots = [replace(records[k], pose=Pose2D(x=float(x[k]), y=float(y[k]), yaw=float(yaw[k])),
+                          linear_velocity=float(v[k]), angular_velocity=float(w[k])) for k in rows]  # fmt: skip
         return RobotList(stamp=Time.from_seconds(roster.time), robots=robots)
+
+    def _name_index(self, roster: Roster) -> listing.NameIndex:
+        """The roster's robots by name (made once per fleet: a roster's robots list is
+        replaced when the fleet changes, kept otherwise)."""
+        cached = self._names_cache
+        if cached is not None and cached[0] is roster.robots:
+            return cached[1]
+        robots = roster.robots
+        index = listing.NameIndex([r.name for r in robots], [r.namespace for r in robots])
+        self._names_cache = (robots, index)
+        return index
 
     def _list_records(self, roster: Roster) -> list[RobotRecord]:
         """Each robot's record as its spawn made it, in the roster's order (a robot deleted a
@@ -331,7 +352,8 @@ class FleetAdapter:
                 self.members.left(event.robot.namespace)
         if isinstance(event, Spawned):
             robot = event.robot
-            self._records[robot.namespace] = convert.robot_record(robot, self.keys, self.daemon_id)
+            record = self._records[robot.namespace] = convert.robot_record(robot, self.keys, self.daemon_id)
+            self.outbox.put(partial(self._list_encoder.prepare, record), wait=False)
             with self._at_once:
                 announced = self._announced.pop(robot.namespace, 0)
                 if announced > 1:
@@ -341,6 +363,7 @@ class FleetAdapter:
                 self.outbox.put_ordered(partial(self.publisher.add_robot, robot, event.time), robot.namespace)
         elif isinstance(event, Deleted):
             self._records.pop(event.robot.namespace, None)
+            self.outbox.put(partial(self._list_encoder.forget, event.robot.namespace), wait=False)
             # behind the ticks queued before it: they still name the robot
             # at once, so that the delete is answered at once; the ticks queued before it leave
             # the robot out, and its encoders are forgotten after them

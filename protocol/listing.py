@@ -1,0 +1,84 @@
+"""Which robots a ``P/robots`` request asks for: all of them, the ones it names, or a page.
+
+The whole list of 20 000 robots is 16 MB of MessagePack: answering it takes a daemon tens of
+milliseconds and the network as long again, and a tool that wants one robot's record, or shows
+a screenful, pays all of it. So a list request may name robots (``names``: their records only,
+in spawn order) or ask for a page (``limit`` records in name order, the first ones whose name
+sorts after ``after``), as paged listings do elsewhere (``kubectl get --limit --continue``).
+A page is found by name, not by position, so the next page is right even when robots came
+and went in between, and several daemons' pages merge into one (each daemon gives its own
+first ``limit`` after the same name; the merge keeps the first ``limit`` of them by name:
+protocol/gather.py).
+
+Pure, so that the daemon, the in-process engine and a client merging daemons' replies agree:
+names in, rows out.
+"""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Sequence
+
+from protocol.control import ListRequest
+from protocol.errors import ErrorCode, FleetError
+from protocol.names import check_name
+
+#: The most robots one page may ask for (a page of them is ~40 MB of MessagePack).
+MAX_LIMIT = 50_000
+
+
+def check(request: ListRequest) -> None:
+    """Raise the protocol's error for a request no daemon can answer: a negative or huge
+    ``limit``, a malformed name in ``names`` or ``after``."""
+    if not 0 <= request.limit <= MAX_LIMIT:
+        raise FleetError(ErrorCode.INVALID_VALUE, f"limit must be 0 (all) to {MAX_LIMIT}, not {request.limit}", "limit")
+    for name in request.names:
+        check_name(name, "names")
+    if request.after:
+        check_name(request.after, "after")
+
+
+def paged(request: ListRequest) -> bool:
+    """Whether the answer is a page in name order (else: spawn order)."""
+    return request.limit > 0 or bool(request.after)
+
+
+def whole(request: ListRequest) -> bool:
+    """Whether the request asks for every robot in spawn order (the list as it always was)."""
+    return not (request.names or paged(request))
+
+
+class NameIndex:
+    """The rows of a fleet's robots by name and namespace, and their order by name: made once
+    for a fleet (a few ms for 20 000 robots), asked many times."""
+
+    def __init__(self, names: Sequence[str], namespaces: Sequence[str]) -> None:
+        self._row = {name: k for k, name in enumerate(names)}
+        self._row.update((ns, k) for k, ns in enumerate(namespaces))
+        self._by_name = sorted(range(len(names)), key=names.__getitem__)
+        self._sorted = [names[k] for k in self._by_name]
+        self._ranks: list[int] | None = None
+
+    def rows(self, request: ListRequest) -> list[int]:
+        """The rows the request asks for, in the order of the answer (call :func:`check`
+        first). Names of no robot are left out: a list says what there is."""
+        if whole(request):
+            return list(range(len(self._by_name)))
+        if not request.names:
+            start = bisect.bisect_right(self._sorted, request.after) if request.after else 0
+            end = start + request.limit if request.limit else len(self._sorted)
+            return self._by_name[start:end]
+        wanted = sorted({k for name in request.names if (k := self._row.get(name)) is not None})
+        if not paged(request):
+            return wanted
+        rank = self._rank()
+        picked = [k for k in sorted(wanted, key=rank.__getitem__) if self._sorted[rank[k]] > request.after]
+        return picked[: request.limit] if request.limit else picked
+
+    def _rank(self) -> list[int]:
+        """Each row's place in name order (made when first needed)."""
+        if self._ranks is None:
+            self._ranks = [0] * len(self._by_name)
+            for place, row in enumerate(self._by_name):
+                self._ranks[row] = place
+        return self._ranks

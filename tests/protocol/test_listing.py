@@ -1,0 +1,103 @@
+"""Which robots a list request names, against the rules written out plainly (protocol/listing.py)."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from protocol.control import ListRequest, Pose2D, RobotList, RobotRecord
+from protocol.errors import ErrorCode, FleetError
+from protocol.gather import merge_lists
+from protocol.listing import MAX_LIMIT, NameIndex, check, paged, whole
+from protocol.messages import Time
+
+NAMES = st.lists(st.from_regex(r"[a-d][a-d0-9_]{0,3}", fullmatch=True), unique=True, max_size=30)
+
+
+def _fleet(names: list[str]) -> tuple[list[str], list[str]]:
+    """Names, and namespaces that differ from them (``ns_`` + name) for every other robot."""
+    return names, [f"ns_{n}" if k % 2 else n for k, n in enumerate(names)]
+
+
+def _expected(names: list[str], namespaces: list[str], request: ListRequest) -> list[int]:
+    """The rows the protocol's words ask for, worked out the slow, obvious way."""
+    rows = list(range(len(names)))
+    if request.names:
+        rows = [k for k in rows if names[k] in request.names or namespaces[k] in request.names]
+    if not paged(request):
+        return rows
+    rows = sorted((k for k in rows if names[k] > request.after), key=lambda k: names[k])
+    return rows[: request.limit] if request.limit else rows
+
+
+@settings(max_examples=300, deadline=None)
+@given(NAMES, st.data())
+def test_the_rows_are_the_ones_the_request_names(names: list[str], data: st.DataObject) -> None:
+    names, namespaces = _fleet(names)
+    some = st.sampled_from(names + namespaces + ["zz", "a"]) if names else st.just("zz")
+    request = ListRequest(
+        names=data.draw(st.lists(some, max_size=6)),
+        after=data.draw(st.one_of(st.just(""), some)),
+        limit=data.draw(st.integers(0, 8)),
+    )
+    assert NameIndex(names, namespaces).rows(request) == _expected(names, namespaces, request)
+
+
+@settings(max_examples=100, deadline=None)
+@given(NAMES, st.integers(1, 7))
+def test_pages_read_one_after_another_give_every_robot_once_in_name_order(names: list[str], limit: int) -> None:
+    names, namespaces = _fleet(names)
+    index = NameIndex(names, namespaces)
+    seen: list[str] = []
+    after = ""
+    while True:
+        page = [names[k] for k in index.rows(ListRequest(after=after, limit=limit))]
+        seen += page
+        if len(page) < limit:
+            break
+        after = page[-1]
+    assert seen == sorted(names)
+
+
+def test_the_next_page_is_right_when_the_last_robot_seen_was_deleted_meanwhile() -> None:
+    before = NameIndex(["a", "b", "c", "d"], ["a", "b", "c", "d"])
+    first = before.rows(ListRequest(limit=2))
+    assert first == [0, 1]
+    after_delete = NameIndex(["a", "c", "d"], ["a", "c", "d"])  # b went
+    assert after_delete.rows(ListRequest(after="b", limit=2)) == [1, 2]
+
+
+def test_an_empty_request_is_the_whole_list_in_spawn_order() -> None:
+    index = NameIndex(["c", "a", "b"], ["c", "a", "b"])
+    assert whole(ListRequest())
+    assert index.rows(ListRequest()) == [0, 1, 2]
+    assert index.rows(ListRequest(names=["b", "c"])) == [0, 2]  # spawn order
+
+
+@pytest.mark.parametrize(
+    ("request_", "code", "field"),
+    [
+        (ListRequest(limit=-1), ErrorCode.INVALID_VALUE, "limit"),
+        (ListRequest(limit=MAX_LIMIT + 1), ErrorCode.INVALID_VALUE, "limit"),
+        (ListRequest(names=["tb3_0", "no spaces"]), ErrorCode.INVALID_NAME, "names"),
+        (ListRequest(names=[""]), ErrorCode.INVALID_NAME, "names"),
+        (ListRequest(after="a/b"), ErrorCode.INVALID_NAME, "after"),
+    ],
+)
+def test_a_request_no_daemon_can_answer_is_refused_saying_which_field(
+    request_: ListRequest, code: ErrorCode, field: str
+) -> None:
+    with pytest.raises(FleetError) as e:
+        check(request_)
+    assert e.value.code == code and e.value.field == field
+
+
+def test_several_daemons_pages_merge_into_the_fleets_page() -> None:
+    def page(*names: str) -> RobotList:
+        robots = [RobotRecord(name=n, namespace=n, model="burger", pose=Pose2D()) for n in names]
+        return RobotList(stamp=Time(sec=1, nanosec=0), robots=robots)
+
+    # each daemon gave its own first three after "" by name; the fleet's first three:
+    merged = merge_lists([page("a", "d", "e"), page("b", "c", "f")], limit=3)
+    assert [r.name for r in merged.robots] == ["a", "b", "c"]
