@@ -89,11 +89,17 @@ def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_enc
         for what, at in batch:
             if what == "spawn":
                 records.append(next(pool))
+                if at % 2:  # encoded ahead, as the adapter does at a spawn
+                    enc.prepare(records[-1])
             elif records and what == "delete":
                 del records[at % len(records)]
             elif records and what == "replace":
                 old = records[at % len(records)]
                 records[at % len(records)] = msgspec.structs.replace(old, name=old.name + "y" * (at % 3), daemon="b")
+                if at % 3 == 1:  # a template of the namespace's record before: never used for the new one
+                    enc.prepare(old)
+                elif at % 3 == 2:
+                    enc.prepare(records[at % len(records)])
             elif records and what == "move":
                 records.insert(at % (len(records) + 1), records.pop(at % len(records)))
         columns = [rng.normal(0, 50, len(records)) for _ in range(5)]
