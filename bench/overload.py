@@ -11,14 +11,19 @@ and scans, as it does whenever anybody follows one robot); a driver process puts
 every robot at 10 Hz through one declared publisher per robot, as bench/driver.py does.
 
 Then two phases, each a loop of requests one after another as a user's tools send them: the
-clock, the robot list, the world, a spawn (accepted), a spawn beyond the limit (refused), the
-delete of the spawned one, a pause and a resume (only while running). ``paused``: right after
+clock, the robot list (``robots``: all of it; ``named``: one robot by name, as ``fleet list
+NAME`` asks; ``page``: 1 000 robots after a name, as a tool reading a big fleet page by page
+asks), the world, a spawn (accepted), a spawn beyond the limit (refused), the delete of the
+spawned one, a pause and a resume (only while running). ``paused``: right after
 the driver attached (its thousands of publishers being declared), with time stopped; ``running``:
 time runs on, at whatever factor the machine manages (far below real time at these sizes).
 Every request is timed from this process (p50/p95/p99/max per kind, per phase); one that gets no
 answer within ``--timeout`` counts as lost. The real-time factor achieved is read from the
 clock's ticks over ``--settle`` seconds of running before the requests (which pause it).
-Writes ``overload.json`` (``--out``).
+Beside the daemon, in each phase, a process that does nothing but nap 5 ms at a time says how
+late the machine wakes it (bench/sleeper.py): no process answers faster than the machine lets
+it run, so a run on a machine shared with other work shows it there. Writes ``overload.json``
+(``--out``).
 """
 
 from __future__ import annotations
@@ -43,12 +48,16 @@ from bench.numbers import percentile
 from bench.processes import PREEXEC, ROOT, DaemonProc, raise_exit, start_daemon, stop_process
 from bench.progress import Progress
 from bench.report import machine_info, machine_line
+from bench.sleeper import Sleeper
 from bench.subscriber import Subscriber
 from bench.wire import PREFIX, TICK_HZ
+from protocol.control import DeleteRequest, ListRequest
 
 #: What the issue asks of every request kind: answered within this, p99, however loaded.
 BOUND_S = 0.100
-KINDS = ("clock", "robots", "world", "spawn", "spawn_refused", "delete", "pause", "resume")
+KINDS = ("clock", "robots", "named", "page", "world", "spawn", "spawn_refused", "delete", "pause", "resume")
+#: Records in a page of the list (``page``: what a tool showing a big fleet asks for).
+PAGE = 1000
 #: Robots of the fleet whose own topics this process follows (the daemon then encodes and puts
 #: every robot's odometry and scans: its per-robot topics are on).
 WATCHED = 4
@@ -114,9 +123,10 @@ class DriverProc:
 class Probe:
     """Requests one after another, timed; each kind's latencies and losses."""
 
-    def __init__(self, fleet: Fleet, timeout: float) -> None:
+    def __init__(self, fleet: Fleet, timeout: float, robots: int) -> None:
         self.fleet = fleet
         self.timeout = timeout
+        self.robots = robots
         self.seconds: dict[str, list[float]] = {k: [] for k in KINDS}
         self.lost: dict[str, int] = {k: 0 for k in KINDS}
         self.unexpected: list[str] = []
@@ -135,6 +145,8 @@ class Probe:
         """One round of every kind."""
         self.ask("clock", "clock", None)
         self.ask("robots", "robots", None)
+        self.ask("named", "robots", ListRequest(names=[f"r{(k * 7919) % self.robots}"]))
+        self.ask("page", "robots", ListRequest(after=f"r{(k * 104729) % self.robots}", limit=PAGE))
         self.ask("world", "world", None)
         self.ask("spawn", "spawn", spawn_request(f"extra{k}", pen[0], pen[1], 0.0))
         self.ask("spawn_refused", "spawn", spawn_request(f"over{k}", pen[0] + 0.5, pen[1], 0.0), want_ok=False)
@@ -158,8 +170,6 @@ class Probe:
 
 
 def _delete(name: str) -> object:
-    from protocol.control import DeleteRequest
-
     return DeleteRequest(name=name)
 
 
@@ -207,13 +217,15 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
             stack.callback(driver.stop)
             driver.wait_ready(120.0)
             pen = arena.extra
-            paused = Probe(fleet, args.timeout)
+            paused = Probe(fleet, args.timeout, n)
             t_end, k = time.monotonic() + args.paused_s, 0
+            sleeper = Sleeper()
             while time.monotonic() < t_end:
                 progress.update(f"{label} paused, driver attached: round {k}")
                 paused.cycle(pen, False, k)
                 k += 1
             out["paused"] = paused.summary()
+            out["machine"] = {"paused": sleeper.stop()}
             fleet.query(f"{PREFIX}/sim/resume", None, 30.0)
             time.sleep(1.0)
             w0, c0 = _clock(fleet, 30.0)  # the factor over the settling, where nothing pauses it
@@ -227,14 +239,16 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
                 "real_time_factor": round(c1.real_time_factor, 3), "falling_behind": c1.falling_behind,
                 "tick_ms": round(c1.tick_s * 1e3, 1), "capacity_robots": c1.capacity_robots,
             }  # fmt: skip
-            running = Probe(fleet, args.timeout)
+            running = Probe(fleet, args.timeout, n)
             t_end = time.monotonic() + args.running_s
+            sleeper = Sleeper()
             while time.monotonic() < t_end:
                 progress.update(f"{label} running: round {k}")
                 running.cycle(pen, True, k)
                 k += 1
                 time.sleep(args.gap)
             out["running"] = running.summary()
+            out["machine"]["running"] = sleeper.stop()
             out["unexpected"] = paused.unexpected + running.unexpected
             out["watched_messages"] = watched[0]
             out["driver"] = driver.stop()
@@ -267,6 +281,13 @@ def table(runs: list[dict[str, Any]]) -> str:
                 cells = [v[f] if v[f] is not None else "–" for f in ("p50_ms", "p95_ms", "p99_ms", "max_ms")]
                 lines.append(f"| {r['robots']} | {phase} | {kind} | {v['n']} | " + " | ".join(map(str, cells))
                              + f" | {v['lost']} |")  # fmt: skip
+    lines.append("")
+    lines.append("| robots | phase | the machine: a process that only naps woke late by, p50 ms | p99 ms | max ms |")
+    lines.append("|---:|---|---:|---:|---:|")
+    for r in runs:
+        for phase, m in r.get("machine", {}).items():
+            if m.get("n"):
+                lines.append(f"| {r['robots']} | {phase} | {m['p50_ms']} | {m['p99_ms']} | {m['max_ms']} |")
     lines.append("")
     lines.append("| robots | RTF achieved | the clock says |")
     lines.append("|---:|---:|---|")

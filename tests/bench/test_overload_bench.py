@@ -24,12 +24,15 @@ def test_a_small_fleet_is_asked_every_kind_of_request(tmp_path: Path) -> None:
     data = json.loads((tmp_path / "overload.json").read_text())
     (run,) = data["runs"]
     assert run["status"] == "ok" and run["spawned"] == 30, run
-    assert set(run["paused"]) == {"clock", "robots", "world", "spawn", "spawn_refused", "delete"}
+    assert set(run["paused"]) == {"clock", "robots", "named", "page", "world", "spawn", "spawn_refused", "delete"}
     assert set(run["running"]) == set(run["paused"]) | {"pause", "resume"}
     for phase in ("paused", "running"):
         assert all(v["n"] >= 1 and v["lost"] == 0 for v in run[phase].values()), run[phase]
     assert not run["unexpected"], run["unexpected"]  # each spawn accepted, each one beyond the limit refused
     assert run["rtf"] > 0 and run["watched_messages"] > 0
+    # the machine's own wake-up lateness beside each phase, from a process that only naps
+    assert all(run["machine"][phase]["n"] > 10 for phase in ("paused", "running")), run["machine"]
+    assert re.search(r"^\| 30 \| running \| [\d.]+ \| [\d.]+ \| [\d.]+ \|$", out, re.MULTILINE), out
     assert re.search(r"^\| 30 \| running \| clock \| \d+ \|", out, re.MULTILINE), out
     assert re.search(r"every request answered within 100 ms p99: (yes|no)", out)
 
