@@ -9,9 +9,10 @@ the simulation thread as ``Engine.serve_pending`` and ``Engine.tick`` run it (a 
 holds its adapter's work, a delete's too; the tick after a change lays out the physics' rows
 again). Between them it times the MessagePack robot list (what ``P/robots`` answers: the
 adapter's records in roster order, encoded from templates by simd/wire/list_codec.py) right
-after the spawn, right after the delete and again with nothing changed. Medians of the rounds,
-in wall milliseconds and in the simulation thread's CPU milliseconds (which other load on a
-shared machine inflates less); compare runs side by side.
+after the spawn, right after the delete and again with nothing changed, and after the
+delete one robot's record asked by name and a page of 1 000 (protocol/listing.py). Medians
+of the rounds, in wall milliseconds and in the simulation thread's CPU milliseconds (which
+other load on a shared machine inflates less); compare runs side by side.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from bench.arena import make_arena
     from bench.processes import free_port
-    from protocol.control import DeleteRequest, SpawnRequest
+    from protocol.control import DeleteRequest, ListRequest, SpawnRequest
     from protocol.keys import Keys
     from simd.adapters.fleet.adapter import FleetAdapter
     from simd.core.sim import SimConfig, Simulation
@@ -86,6 +88,9 @@ def main(argv: list[str] | None = None) -> int:
             engine.submit(DeleteRequest(name=name), lambda r: None)
             timed("delete", engine.serve_pending)
             timed("list after a delete", robot_list)
+            one, page = ListRequest(names=[f"r{k * 997 % n}"]), ListRequest(after=f"r{k * 1999 % n}", limit=1000)
+            timed("one by name, after", partial(adapter._robot_list, one))
+            timed("a page of 1000, after", partial(adapter._robot_list, page))
             timed("tick after", engine.tick)
             timed("tick, nothing changed", engine.tick)
             timed("list, nothing changed", robot_list)
