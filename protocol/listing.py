@@ -25,6 +25,8 @@ from protocol.names import check_name
 
 #: The most robots one page may ask for (a page of them is ~40 MB of MessagePack).
 MAX_LIMIT = 50_000
+#: Names asked for up to this many are found by scanning the name lists, more by a dict.
+_SCANNED = 16
 
 
 def check(request: ListRequest) -> None:
@@ -50,35 +52,62 @@ def whole(request: ListRequest) -> bool:
 
 class NameIndex:
     """The rows of a fleet's robots by name and namespace, and their order by name: made once
-    for a fleet (a few ms for 20 000 robots), asked many times."""
+    for a fleet, asked many times. Each part is made when first needed: a few names are found
+    by a scan of the name lists in C (~0.3 ms at 20 000 robots), many by a dict, and the order
+    by name (a few ms) only for a page."""
 
     def __init__(self, names: Sequence[str], namespaces: Sequence[str]) -> None:
-        self._row = {name: k for k, name in enumerate(names)}
-        self._row.update((ns, k) for k, ns in enumerate(namespaces))
-        self._by_name = sorted(range(len(names)), key=names.__getitem__)
-        self._sorted = [names[k] for k in self._by_name]
-        self._ranks: list[int] | None = None
+        self._names = names  # (never changed while an index of them lives)
+        self._namespaces = namespaces
+        self._row_of: dict[str, int] | None = None
+        self._order: tuple[list[int], list[str]] | None = None  # rows by name, and their names
+
+    def _find(self, key: str) -> int | None:
+        for listed in (self._names, self._namespaces):
+            try:
+                return listed.index(key)
+            except ValueError:
+                pass
+        return None
+
+    def _rows_of(self, keys: Sequence[str]) -> list[int]:
+        """The rows of these names or namespaces, in spawn order, once each."""
+        if len(keys) <= _SCANNED:
+            found = [self._find(key) for key in keys]
+        else:
+            if self._row_of is None:
+                self._row_of = {ns: k for k, ns in enumerate(self._namespaces)}
+                self._row_of.update((name, k) for k, name in enumerate(self._names))
+            found = [self._row_of.get(key) for key in keys]
+        return sorted({k for k in found if k is not None})
+
+    @property
+    def _by_name(self) -> list[int]:
+        return self._sorted_order()[0]
+
+    @property
+    def _sorted(self) -> list[str]:
+        return self._sorted_order()[1]
+
+    def _sorted_order(self) -> tuple[list[int], list[str]]:
+        if self._order is None:
+            names = self._names
+            rows = sorted(range(len(names)), key=names.__getitem__)
+            self._order = (rows, [names[k] for k in rows])
+        return self._order
 
     def rows(self, request: ListRequest) -> list[int]:
         """The rows the request asks for, in the order of the answer (call :func:`check`
         first). Names of no robot are left out: a list says what there is."""
         if whole(request):
-            return list(range(len(self._by_name)))
+            return list(range(len(self._names)))
         if not request.names:
             start = bisect.bisect_right(self._sorted, request.after) if request.after else 0
             end = start + request.limit if request.limit else len(self._sorted)
             return self._by_name[start:end]
-        wanted = sorted({k for name in request.names if (k := self._row.get(name)) is not None})
+        wanted = self._rows_of(request.names)
         if not paged(request):
             return wanted
-        rank = self._rank()
-        picked = [k for k in sorted(wanted, key=rank.__getitem__) if self._sorted[rank[k]] > request.after]
+        names = self._names
+        picked = [k for k in sorted(wanted, key=names.__getitem__) if names[k] > request.after]
         return picked[: request.limit] if request.limit else picked
-
-    def _rank(self) -> list[int]:
-        """Each row's place in name order (made when first needed)."""
-        if self._ranks is None:
-            self._ranks = [0] * len(self._by_name)
-            for place, row in enumerate(self._by_name):
-                self._ranks[row] = place
-        return self._ranks

@@ -87,6 +87,7 @@ class RobotTable:
     def __post_init__(self) -> None:
         self.robots: list[Robot] = []
         # handed out with every tick: replaced, never changed in place, when rows change
+        self.names: list[str] = []
         self.namespaces: list[str] = []
         self._by_key: dict[str, Robot] = {}
         self._row_of: dict[str, int] = {}  # namespace -> row
@@ -130,6 +131,7 @@ class RobotTable:
             setattr(self, f.name, new)
         row = len(self.robots)
         self.robots.append(robot)
+        self.names = [*self.names, robot.name]
         self.namespaces = [*self.namespaces, robot.namespace]
         self._by_key[robot.name] = robot
         self._by_key[robot.namespace] = robot
@@ -154,12 +156,13 @@ class RobotTable:
         for name in self.columns():
             setattr(self, name, np.delete(getattr(self, name), where, axis=0))
         kept = list(self.robots)  # new lists: whoever holds the old ones keeps them whole
-        namespaces = list(self.namespaces)
+        names, namespaces = list(self.names), list(self.namespaces)
         for row in sorted(rows, reverse=True):
             del kept[row]
+            del names[row]
             del namespaces[row]
         self.robots = kept
-        self.namespaces = namespaces
+        self.names, self.namespaces = names, namespaces
         # only the rows after the first one removed move up: renumbered in C (a comprehension
         # over every robot took ~4 ms at 20 000 robots)
         first = min(rows)

@@ -63,7 +63,6 @@ class Promises:
         self._sim = sim  # for its any-thread checks only (fields, bounds)
         self._walls: Walls | None = None  # made at the first spawn asked
         self.pending: list[Promise] = []
-        self._names_of: tuple[list[Robot] | None, list[str], list[str]] = (None, [], [])
 
     def __bool__(self) -> bool:
         return bool(self.pending)
@@ -95,7 +94,7 @@ class Promises:
         added, removed = self.net()
         if not added and not removed:
             return roster
-        keep = np.fromiter((r.namespace not in removed for r in roster.robots), dtype=bool, count=len(roster.robots))
+        keep = np.fromiter((ns not in removed for ns in roster.namespaces), dtype=bool, count=len(roster.robots))
         robots = [r for r, k in zip(roster.robots, keep.tolist(), strict=True) if k]
         new = [p.state for p in added.values()]
         robots += [Robot(-1, s.name, s.namespace, s.model, s.spawn_pose, -1) for s in new]
@@ -104,6 +103,7 @@ class Promises:
         def column(values: np.ndarray, of_new: list[float] | np.ndarray) -> np.ndarray:
             return np.concatenate([values[keep], np.asarray(of_new, dtype=np.float64)])
 
+        kept = keep.tolist()
         return Roster(
             roster.time,
             robots,
@@ -113,6 +113,8 @@ class Promises:
             column(roster.linear, zeros),
             column(roster.angular, zeros),
             column(roster.lateral, zeros),
+            [n for n, k in zip(roster.names, kept, strict=True) if k] + [s.name for s in new],
+            [n for n, k in zip(roster.namespaces, kept, strict=True) if k] + [s.namespace for s in new],
         )
 
     # -- promising ---------------------------------------------------------------------------
@@ -124,7 +126,7 @@ class Promises:
         added, removed = self.net()
         taken = {k for p in added.values() for k in (p.state.name, p.state.namespace)}
         for key in {name, namespace}:
-            row = self._row(roster, key)
+            row = roster.row(key)
             if key in taken or (row is not None and roster.robots[row].namespace not in removed):
                 return None
         x, y, yaw = float(req.x), float(req.y), wrap_angle(float(req.yaw))
@@ -141,7 +143,7 @@ class Promises:
         key = req.name
         state = next((p.state for p in added.values() if key in (p.state.name, p.state.namespace)), None)
         if state is None:
-            row = self._row(roster, key)
+            row = roster.row(key)
             if row is None or roster.robots[row].namespace in removed:
                 return None
             r = roster.robots[row]
@@ -154,18 +156,6 @@ class Promises:
     def made(self) -> None:
         """The simulation thread has made the oldest promise (they are made in order)."""
         self.pending.pop(0)
-
-    def _row(self, roster: Roster, key: str) -> int | None:
-        """The row of the robot with this name or namespace. The names are listed once per
-        roster (~2 ms at 20 000 robots; a dict of them took ~10, more with the GIL shared), then
-        searched in C."""
-        if self._names_of[0] is not roster.robots:
-            robots = roster.robots
-            self._names_of = (robots, [r.name for r in robots], [r.namespace for r in robots])
-        for listed in self._names_of[1:]:
-            if key in listed:
-                return listed.index(key)
-        return None
 
     def _clear(self, model: RobotModel, x: float, y: float, yaw: float, roster: Roster,
                added: dict[str, Promise], removed: set[str]) -> bool:  # fmt: skip

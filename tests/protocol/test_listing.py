@@ -37,7 +37,7 @@ def test_the_rows_are_the_ones_the_request_names(names: list[str], data: st.Data
     names, namespaces = _fleet(names)
     some = st.sampled_from(names + namespaces + ["zz", "a"]) if names else st.just("zz")
     request = ListRequest(
-        names=data.draw(st.lists(some, max_size=6)),
+        names=data.draw(st.lists(some, max_size=24)),  # a few are scanned for, many looked up
         after=data.draw(st.one_of(st.just(""), some)),
         limit=data.draw(st.integers(0, 8)),
     )

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from typing import Any, cast
 
@@ -58,6 +58,7 @@ from simd.adapters.fleet.presence import Members
 from simd.adapters.fleet.publisher import Publisher
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.core import carry
+from simd.core.robots import Robot
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.engine import Engine
@@ -188,8 +189,13 @@ class FleetAdapter:
         of; the whole list in MessagePack is written from byte templates of the same records
         (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60)."""
         roster = self.engine.roster_now()
-        records = self._list_records(roster)
-        rows = range(len(records)) if listing.whole(request) else self._name_index(roster).rows(request)
+        records: list[RobotRecord] | dict[int, RobotRecord]
+        if listing.whole(request):
+            records = self._list_records(roster)
+            rows: Sequence[int] = range(len(records))
+        else:  # some robots: their records looked up, not the fleet's laid out
+            rows = self._name_index(roster).rows(request)
+            records = {k: self._record_of(roster.robots[k]) for k in rows}
         x, y, yaw, v, w = (roster.x, roster.y, roster.yaw, roster.linear, roster.angular)
         replace = msgspec.structs.replace
         robots = [replace(records[k], pose=Pose2D(x=float(x[k]), y=float(y[k]), yaw=float(yaw[k])),
@@ -202,9 +208,8 @@ class FleetAdapter:
         cached = self._names_cache
         if cached is not None and cached[0] is roster.robots:
             return cached[1]
-        robots = roster.robots
-        index = listing.NameIndex([r.name for r in robots], [r.namespace for r in robots])
-        self._names_cache = (robots, index)
+        index = listing.NameIndex(roster.names, roster.namespaces)
+        self._names_cache = (roster.robots, index)
         return index
 
     def _list_records(self, roster: Roster) -> list[RobotRecord]:
@@ -223,17 +228,20 @@ class FleetAdapter:
         listed: list[RobotRecord | None] = [None] * len(robots)
         for first, count, at in carry.runs(source):
             listed[first : first + count] = before[at : at + count]
-        records = self._records
         for k in np.flatnonzero(source < 0).tolist():
-            robot = robots[k]
-            record = records.get(robot.namespace)
-            if record is None:
-                state = RobotState(robot.name, robot.namespace, robot.model, 0.0, 0.0, 0.0, 0.0, 0.0, robot.spawn_pose)
-                record = convert.robot_record(state, self.keys, self.daemon_id)
-            listed[k] = record
+            listed[k] = self._record_of(robots[k])
         made = cast("list[RobotRecord]", listed)
         self._list_cache = (robots, ids, made)  # the robots held: their identities stay theirs
         return made
+
+    def _record_of(self, robot: Robot) -> RobotRecord:
+        """A robot's record as its spawn made it (one just deleted, or answered at once and not
+        yet made: from what the roster says of it)."""
+        record = self._records.get(robot.namespace)
+        if record is None or record.name != robot.name:
+            state = RobotState(robot.name, robot.namespace, robot.model, 0.0, 0.0, 0.0, 0.0, 0.0, robot.spawn_pose)
+            record = convert.robot_record(state, self.keys, self.daemon_id)
+        return record
 
     def own_namespaces(self) -> set[str]:
         """The names and namespaces of this daemon's robots (a copy, for other threads)."""
