@@ -58,7 +58,6 @@ from simd.adapters.fleet.presence import Members
 from simd.adapters.fleet.publisher import Publisher
 from simd.adapters.zenoh_entities import undeclare_all
 from simd.core import carry
-from simd.core.robots import Robot
 from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import WorldGeometry
 from simd.engine import Engine
@@ -195,7 +194,7 @@ class FleetAdapter:
             rows: Sequence[int] = range(len(records))
         else:  # some robots: their records looked up, not the fleet's laid out
             rows = self._name_index(roster).rows(request)
-            records = {k: self._record_of(roster.robots[k]) for k in rows}
+            records = {k: self._record_of(roster, k) for k in rows}
         x, y, yaw, v, w = (roster.x, roster.y, roster.yaw, roster.linear, roster.angular)
         replace = msgspec.structs.replace
         robots = [replace(records[k], pose=Pose2D(x=float(x[k]), y=float(y[k]), yaw=float(yaw[k])),
@@ -229,14 +228,15 @@ class FleetAdapter:
         for first, count, at in carry.runs(source):
             listed[first : first + count] = before[at : at + count]
         for k in np.flatnonzero(source < 0).tolist():
-            listed[k] = self._record_of(robots[k])
+            listed[k] = self._record_of(roster, k)
         made = cast("list[RobotRecord]", listed)
         self._list_cache = (robots, ids, made)  # the robots held: their identities stay theirs
         return made
 
-    def _record_of(self, robot: Robot) -> RobotRecord:
+    def _record_of(self, roster: Roster, row: int) -> RobotRecord:
         """A robot's record as its spawn made it (one just deleted, or answered at once and not
         yet made: from what the roster says of it)."""
+        robot = roster.robots[row]
         record = self._records.get(robot.namespace)
         if record is None or record.name != robot.name:
             state = RobotState(robot.name, robot.namespace, robot.model, 0.0, 0.0, 0.0, 0.0, 0.0, robot.spawn_pose)
