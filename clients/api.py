@@ -645,8 +645,8 @@ class FleetClient:
         for reply in self.session.liveliness().get(self.keys.daemon("*"), timeout=self.timeout):  # known at once
             if reply.ok is not None:
                 live.add(str(reply.ok.key_expr)[len(head) :])
-        merger = TickMerge(lambda: len(live), callback)
-        return self._subscribe_fleet(self.keys.fleet_odom, FleetOdometry, merger.add, daemons)
+        merger = TickMerge(lambda: len(live), callback, flush_after=True)
+        return self._subscribe_fleet(self.keys.fleet_odom, FleetOdometry, merger.add, daemons, merger)
 
     def on_fleet_scans(self, callback: Callable[[FleetScans], None]) -> Subscription:
         """``callback(fleet_scans)`` once a tick with the scans taken in it (``P/scans``);

@@ -5,21 +5,28 @@ is the whole fleet; in a fleet shared by several daemons (``simd --join``) each 
 with the same stamp, a few milliseconds apart. A follower of the whole fleet wants what one
 daemon gives: one message a tick with every robot. :class:`TickMerge` gathers the parts of a
 stamp and hands them on as one message once every live daemon's part is in. A part may never
-come (a daemon with no robots puts none; a daemon that just died): a tick still waiting when
-``hold`` later ticks have begun, or when a later tick is whole, is handed on with the parts it
-has, so nothing waits long and no row is dropped. A part that comes after its tick went is
+come (a daemon with no robots puts none; a daemon that just died): a tick still waiting once
+``hold`` later ticks have begun and it has waited ``hold_s`` of wall time, or when a later tick
+is whole, is handed on with the parts it has, so nothing waits long and no row is dropped (with
+``flush_after``, a timer hands on what waited ``hold_s`` when no more parts come). Both
+conditions, because a stepped fleet runs ticks far faster than real time: three ticks were a
+fraction of a millisecond there, less than one daemon's part may lag another's through a
+router, and a tick then came out in two messages. A part that comes after its tick went is
 handed on alone; a stamp far older than the last one handed on is a reset, and starts over.
 """
 
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Callable
 
 from protocol.messages import FLEET_ODOM_COLUMNS, FleetOdometry, Time
 
 #: later ticks begun before a tick still missing a part is handed on without it
 HOLD_TICKS = 3
+#: ... and the wall time it has waited (three ticks in real time)
+HOLD_S = 0.1
 #: a part this much older than the newest tick handed on is a new run (a reset), not a late part
 RESET_SECONDS = 1.0
 
@@ -44,21 +51,78 @@ class TickMerge:
     """
 
     def __init__(
-        self, expected: Callable[[], int], emit: Callable[[FleetOdometry], None], hold: int = HOLD_TICKS
+        self,
+        expected: Callable[[], int],
+        emit: Callable[[FleetOdometry], None],
+        hold: int = HOLD_TICKS,
+        hold_s: float = HOLD_S,
+        clock: Callable[[], float] = time.monotonic,
+        flush_after: bool = False,
     ) -> None:
         self._expected = expected
         self._emit = emit
         self._hold = hold
+        self._hold_s = hold_s
+        self._clock = clock
+        self._flush_after = flush_after
         self._lock = threading.Lock()
+        self._handing_on = threading.Lock()
+        self._closed = False
         self._pending: dict[int, list[FleetOdometry]] = {}
+        self._since: dict[int, float] = {}  # when each pending tick's first part came
         self._last: int | None = None  # the newest tick handed on
+        self._timer: threading.Timer | None = None
 
     def add(self, part: FleetOdometry) -> None:
         key = _key(part.stamp)
+        with self._handing_on:  # (the timer's thread hands on too: one at a time, in order)
+            with self._lock:
+                out = [] if self._closed else self._take(key, part)
+                self._arm()
+            for msg in out:
+                self._emit(msg)
+
+    def flush(self) -> None:
+        """Hand on the ticks that have waited ``hold_s`` with the parts they have (oldest first;
+        the timer of ``flush_after`` calls this)."""
+        with self._handing_on:
+            with self._lock:
+                self._timer = None
+                out = [] if self._closed else self._overdue(0)
+                self._arm()
+            for msg in out:
+                self._emit(msg)
+
+    def undeclare(self) -> None:
+        """Stop: nothing more is handed on (a subscription that ends ends its merge too)."""
         with self._lock:
-            out = self._take(key, part)
-        for msg in out:
-            self._emit(msg)
+            self._closed = True
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+
+    def _arm(self) -> None:
+        """With ``flush_after``: a timer for the oldest tick still waiting (under the lock)."""
+        if not self._flush_after or self._closed or self._timer is not None or not self._pending:
+            return
+        wait = self._since[min(self._pending)] + self._hold_s - self._clock()
+        self._timer = threading.Timer(max(wait, 0.0) + 0.001, self.flush)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def _overdue(self, keep: int) -> list[FleetOdometry]:
+        """The oldest pending ticks, while more than ``keep`` wait and the oldest has waited
+        ``hold_s`` (under the lock)."""
+        out: list[FleetOdometry] = []
+        now = self._clock()
+        while len(self._pending) > keep:
+            oldest = min(self._pending)
+            if now - self._since[oldest] < self._hold_s:
+                break
+            out.append(merge(self._pending.pop(oldest)))
+            del self._since[oldest]
+            self._last = oldest
+        return out
 
     def _take(self, key: int, part: FleetOdometry) -> list[FleetOdometry]:
         """What is ready to hand on once ``part`` is in (called under the lock)."""
@@ -66,16 +130,17 @@ class TickMerge:
             if self._last - key < RESET_SECONDS * 1e9:
                 return [part]  # a late part of a tick already handed on: alone, not lost
             self._pending.clear()  # the clock went back: a reset
+            self._since.clear()
             self._last = None
+        if key not in self._pending:
+            self._since[key] = self._clock()
         parts = self._pending.setdefault(key, [])
         parts.append(part)
         out: list[FleetOdometry] = []
         if len(parts) >= max(1, self._expected()):  # whole: it and every older tick go
             for k in sorted(k for k in self._pending if k <= key):
                 out.append(merge(self._pending.pop(k)))
+                del self._since[k]
             self._last = key
-        while len(self._pending) > self._hold:  # a part that is not coming: the oldest goes as it is
-            oldest = min(self._pending)
-            out.append(merge(self._pending.pop(oldest)))
-            self._last = oldest
+        out += self._overdue(self._hold)  # a part that is not coming: the oldest go as they are
         return out

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
+from clients import wait_until
 from clients.tick_merge import TickMerge, merge
 from protocol.messages import FleetOdometry, Time
 
@@ -28,12 +31,29 @@ def part(tick: int, *namespaces: str) -> FleetOdometry:
     )
 
 
-def run(daemons: int, parts: list[FleetOdometry]) -> list[tuple[int, list[str]]]:
-    """(tick, namespaces) of each message handed on."""
+class Clock:
+    """Wall time for a merge, moved by the test."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def run(daemons: int, parts: list[FleetOdometry], apart_s: float = 0.04) -> list[tuple[int, list[str]]]:
+    """(tick, namespaces) of each message handed on, the parts coming ``apart_s`` apart (about
+    real time by default, clear of the hold's edge)."""
     out: list[FleetOdometry] = []
-    m = TickMerge(lambda: daemons, out.append)
+    clock = Clock()
+    m = TickMerge(lambda: daemons, out.append, clock=clock)
     for p in parts:
         m.add(p)
+        clock.now += apart_s
+    return _ticks(out)
+
+
+def _ticks(out: list[FleetOdometry]) -> list[tuple[int, list[str]]]:
     return [(int(msg.array("x")[0]), msg.namespaces) for msg in out]
 
 
@@ -91,3 +111,41 @@ def test_merged_columns_keep_each_row_with_its_namespace() -> None:
     assert msg.namespaces == ["a0", "a3", "b1", "c2"]
     assert msg.array("y").tolist() == [0.0, 3.0, 1.0, 2.0]
     assert msg.array("x").tolist() == [4.0] * 4 and msg.stamp == part(4, "x0").stamp
+
+
+def test_a_stepped_fleet_far_faster_than_real_time_keeps_its_ticks_whole() -> None:
+    """Ticks a millisecond apart: one daemon's parts four ticks behind the other's (through a
+    router) still join their ticks. Counted in ticks alone, the hold handed the first ticks on
+    half, and their other halves after them (the flaky tests/scaleout/test_shared.py)."""
+    a = [part(t, "a0") for t in range(1, 7)]
+    b = [part(t, "b1") for t in range(1, 7)]
+    parts = [a[0], a[1], a[2], a[3], a[4], b[0], a[5], b[1], b[2], b[3], b[4], b[5]]
+    assert run(2, parts, apart_s=0.001) == [(t, ["a0", "b1"]) for t in range(1, 7)]
+
+
+def test_ticks_missing_a_part_go_once_they_have_waited_when_no_more_parts_come() -> None:
+    out: list[FleetOdometry] = []
+    clock = Clock()
+    m = TickMerge(lambda: 2, out.append, clock=clock)  # the other daemon has no robots: puts nothing
+    for t in range(1, 6):  # a step of five ticks, a millisecond apart, then nothing
+        m.add(part(t, "a0"))
+        clock.now += 0.001
+    assert out == []  # they have not waited yet
+    clock.now += 0.05
+    m.flush()
+    assert out == []
+    clock.now += 0.05
+    m.flush()
+    assert _ticks(out) == [(t, ["a0"]) for t in range(1, 6)]  # all, in order, none lost
+
+
+def test_the_timer_hands_on_a_tick_whose_part_never_comes_and_stops_with_the_subscription() -> None:
+    out: list[FleetOdometry] = []
+    m = TickMerge(lambda: 2, out.append, hold_s=0.05, flush_after=True)
+    m.add(part(1, "a0"))
+    assert wait_until(lambda: len(out) == 1, 5.0)
+    assert _ticks(out) == [(1, ["a0"])]
+    m.add(part(2, "a0"))
+    m.undeclare()  # before its hold is over: never handed on
+    time.sleep(0.2)
+    assert len(out) == 1
