@@ -3,7 +3,8 @@
 In: ``P/<ns>/navigate`` (a goal), ``P/<ns>/navigate/cancel`` and ``P/<ns>/navigate/state``,
 declared once as wildcard queryables; the robot is the key's ``<ns>`` chunk. The goal and
 the cancel act only on a query for one concrete key (a wildcard get never sends a robot
-anywhere); the state answers wildcard gets too, one reply per robot that has had a goal.
+anywhere), and the state answers one robot per query (a wildcard gets no reply: ``P/navigation``
+carries every navigating robot's state, and ``P/*/plan`` answers wildcards).
 
 Out, on the fleet adapter's thread: a goal's result on ``P/<ns>/navigate/result`` (always:
 once per goal), each path on ``P/<ns>/plan`` (always: a path is planned a few times per
