@@ -52,6 +52,7 @@ from protocol.control import (
 from protocol.errors import ErrorCode, FleetError
 from protocol.gather import GATHER, Gather, Gathering, merge_lists, merge_steps
 from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.listing import select
 from protocol.messages import FleetOdometry, FleetScans, LaserScan, Odometry, Twist, Vector3
 from protocol.names import check_name
 from protocol.navigation import (
@@ -373,15 +374,34 @@ class FleetClient:
     def robots(self, names: Sequence[str] | None = None) -> list[RobotRecord]:
         """Every robot of the fleet, whichever daemon runs it (each daemon lists its own); with
         ``names``, only the robots of those names or namespaces (those that exist)."""
-        request = ListRequest(names=list(names)) if names else None
-        return merge_lists(self._query_all(self.keys.robots, request, RobotList)).robots
+        if names is None:
+            return merge_lists(self._query_all(self.keys.robots, None, RobotList)).robots
+        if not names:
+            return []
+        return self._listed(ListRequest(names=list(names)))
 
     def robots_page(self, after: str = "", limit: int = 1000) -> list[RobotRecord]:
-        """At most ``limit`` robots in name order, those whose name sorts after ``after``:
-        read a big fleet a page at a time (the next page is after the last name of this one;
-        a page shorter than ``limit`` is the last). Protocol/listing.py says why."""
-        request = ListRequest(after=after, limit=limit)
-        return merge_lists(self._query_all(self.keys.robots, request, RobotList), limit).robots
+        """At most ``limit`` robots in name order (plain string order: ``burger_10`` before
+        ``burger_2``), those whose name sorts after ``after``: read a big fleet a page at a
+        time (the next page is after the last name of this one; a page shorter than ``limit``
+        is the last), or let :meth:`iter_robots` do it. Protocol/listing.py says why."""
+        return self._listed(ListRequest(after=after, limit=limit))
+
+    def iter_robots(self, page: int = 1000) -> Iterator[RobotRecord]:
+        """Every robot of the fleet, in name order, asked for ``page`` at a time: a fleet of
+        tens of thousands read without one reply of tens of MB."""
+        after = ""
+        while True:
+            got = self.robots_page(after, page)
+            yield from got
+            if len(got) < page:
+                return
+            after = got[-1].name
+
+    def _listed(self, request: ListRequest) -> list[RobotRecord]:
+        """A named list or a page, picked again here from what the daemons answered: each
+        daemon gives its own, and a daemon older than these fields gives every robot."""
+        return select(merge_lists(self._query_all(self.keys.robots, request, RobotList)).robots, request)
 
     def robot(self, key: str) -> RobotRecord | None:
         """The record of a robot by name or namespace, or None (asked for alone: a daemon

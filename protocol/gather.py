@@ -106,15 +106,13 @@ def merge(replies: Sequence[T], observe: Sequence[str] = ()) -> T:
     return first
 
 
-def merge_lists(lists: list[RobotList], limit: int = 0) -> RobotList:
+def merge_lists(lists: list[RobotList]) -> RobotList:
     """Every daemon's robots as one list: one daemon's in its order (spawn order), several
-    daemons' by name; stamped with the latest of their stamps. With ``limit`` (a page, each
-    daemon's in name order, protocol/listing.py): the first ``limit`` of them by name."""
+    daemons' by name; stamped with the latest of their stamps. (A page or a named list is
+    then picked from it: protocol/listing.py.)"""
     if len(lists) == 1:
         return lists[0]
     robots = sorted((r for rl in lists for r in rl.robots), key=lambda r: r.name)
-    if limit:
-        robots = robots[:limit]
     stamp = max((rl.stamp for rl in lists), key=lambda t: (t.sec, t.nanosec))
     return RobotList(stamp=stamp, robots=robots)
 

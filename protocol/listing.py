@@ -7,8 +7,8 @@ in spawn order) or ask for a page (``limit`` records in name order, the first on
 sorts after ``after``), as paged listings do elsewhere (``kubectl get --limit --continue``).
 A page is found by name, not by position, so the next page is right even when robots came
 and went in between, and several daemons' pages merge into one (each daemon gives its own
-first ``limit`` after the same name; the merge keeps the first ``limit`` of them by name:
-protocol/gather.py).
+first ``limit`` after the same name; the client keeps the first ``limit`` of them all by name,
+:func:`select`).
 
 Pure, so that the daemon, the in-process engine and a client merging daemons' replies agree:
 names in, rows out.
@@ -19,7 +19,7 @@ from __future__ import annotations
 import bisect
 from collections.abc import Sequence
 
-from protocol.control import ListRequest
+from protocol.control import ListRequest, RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
 
@@ -31,9 +31,12 @@ _SCANNED = 16
 
 def check(request: ListRequest) -> None:
     """Raise the protocol's error for a request no daemon can answer: a negative or huge
-    ``limit``, a malformed name in ``names`` or ``after``."""
+    ``limit``, more than ``MAX_LIMIT`` names, a malformed name in ``names`` or ``after``."""
     if not 0 <= request.limit <= MAX_LIMIT:
         raise FleetError(ErrorCode.INVALID_VALUE, f"limit must be 0 (all) to {MAX_LIMIT}, not {request.limit}", "limit")
+    if len(request.names) > MAX_LIMIT:
+        message = f"at most {MAX_LIMIT} names a request, not {len(request.names)}: ask for a page instead"
+        raise FleetError(ErrorCode.INVALID_VALUE, message, "names")
     for name in request.names:
         check_name(name, "names")
     if request.after:
@@ -75,10 +78,12 @@ class NameIndex:
         if len(keys) <= _SCANNED:
             found = [self._find(key) for key in keys]
         else:
-            if self._row_of is None:
-                self._row_of = {ns: k for k, ns in enumerate(self._namespaces)}
-                self._row_of.update((name, k) for k, name in enumerate(self._names))
-            found = [self._row_of.get(key) for key in keys]
+            row_of = self._row_of
+            if row_of is None:  # made whole before it is shared: other threads may ask at once
+                row_of = {ns: k for k, ns in enumerate(self._namespaces)}
+                row_of.update((name, k) for k, name in enumerate(self._names))
+                self._row_of = row_of
+            found = [row_of.get(key) for key in keys]
         return sorted({k for k in found if k is not None})
 
     @property
@@ -111,3 +116,13 @@ class NameIndex:
         names = self._names
         picked = [k for k in sorted(wanted, key=names.__getitem__) if names[k] > request.after]
         return picked[: request.limit] if request.limit else picked
+
+
+def select(records: list[RobotRecord], request: ListRequest) -> list[RobotRecord]:
+    """The records the request asks for among ``records`` (a reply, or several daemons'
+    merged), in the order of the answer: what a client applies to what it got, so that a
+    daemon older than these fields (it answers every robot) gives the right answer too."""
+    if whole(request):
+        return records
+    index = NameIndex([r.name for r in records], [r.namespace for r in records])
+    return [records[k] for k in index.rows(request)]

@@ -145,6 +145,16 @@ class RobotListEncoder:
         """A robot is gone before a list laid it out: its template is not needed."""
         self._ready.pop(namespace, None)
 
+    def _drop_laid_out(self, layout: _Layout) -> None:
+        """Forget the templates of records the layout has already (a list laid one out before
+        its spawn's ``prepare`` ran, or with another record while the spawn was promised):
+        they would never be used, and waited for the robot's delete."""
+        entries = list(self._ready.items())  # (prepare may add one meanwhile: it stays)
+        laid = carry.positions(layout.identities, carry.identities([entry[0] for _, entry in entries])) >= 0
+        for (ns, entry), done in zip(entries, laid.tolist(), strict=True):
+            if done and self._ready.get(ns) is entry:
+                del self._ready[ns]
+
     def _template(self, record: RobotRecord) -> _Template:
         ready = self._ready.pop(record.namespace, None)
         if ready is not None and ready[0] is record:
@@ -168,6 +178,8 @@ class RobotListEncoder:
             layout = self._layout
             if records is not layout.records:
                 layout = self._layout = layout.successor(records, self._template)
+                if self._ready:
+                    self._drop_laid_out(layout)
         prefix = head[:-1] + _array_header(n)
         out = bytearray(prefix) + layout.buffer.data
         body = np.frombuffer(out, dtype=np.uint8, offset=len(prefix))

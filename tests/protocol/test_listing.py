@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from protocol.control import ListRequest, Pose2D, RobotList, RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.gather import merge_lists
-from protocol.listing import MAX_LIMIT, NameIndex, check, paged, whole
+from protocol.listing import MAX_LIMIT, NameIndex, check, paged, select, whole
 from protocol.messages import Time
 
 NAMES = st.lists(st.from_regex(r"[a-d][a-d0-9_]{0,3}", fullmatch=True), unique=True, max_size=30)
@@ -93,11 +93,35 @@ def test_a_request_no_daemon_can_answer_is_refused_saying_which_field(
     assert e.value.code == code and e.value.field == field
 
 
-def test_several_daemons_pages_merge_into_the_fleets_page() -> None:
-    def page(*names: str) -> RobotList:
-        robots = [RobotRecord(name=n, namespace=n, model="burger", pose=Pose2D()) for n in names]
-        return RobotList(stamp=Time(sec=1, nanosec=0), robots=robots)
+def _list(*names: str) -> RobotList:
+    robots = [RobotRecord(name=n, namespace=n, model="burger", pose=Pose2D()) for n in names]
+    return RobotList(stamp=Time(sec=1, nanosec=0), robots=robots)
 
-    # each daemon gave its own first three after "" by name; the fleet's first three:
-    merged = merge_lists([page("a", "d", "e"), page("b", "c", "f")], limit=3)
-    assert [r.name for r in merged.robots] == ["a", "b", "c"]
+
+def test_several_daemons_pages_merge_into_the_fleets_page() -> None:
+    # each daemon gave its own first three after "": the fleet's first three
+    page = ListRequest(limit=3)
+    merged = merge_lists([_list("a", "d", "e"), _list("b", "c", "f")]).robots
+    assert [r.name for r in select(merged, page)] == ["a", "b", "c"]
+
+
+@pytest.mark.parametrize(
+    ("request_", "want"),
+    [
+        (ListRequest(names=["r_d", "r_a", "nobody"]), ["r_a", "r_d"]),
+        (ListRequest(limit=2), ["r_a", "r_b"]),
+        (ListRequest(after="r_b", limit=2), ["r_c", "r_d"]),
+        (ListRequest(after="r_d", limit=2), ["r_e"]),
+        (ListRequest(names=["r_e", "r_b", "r_c"], after="r_b", limit=1), ["r_c"]),
+    ],
+)
+def test_a_daemon_that_answers_every_robot_still_gives_the_client_what_it_asked(
+    request_: ListRequest, want: list[str]
+) -> None:
+    """A daemon older than these fields ignores them and lists everyone (spawn order), alone or
+    beside a new one: the client picks the answer out of what came."""
+    alone = _list("r_c", "r_a", "r_e", "r_b", "r_d")
+    assert [r.name for r in select(merge_lists([alone]).robots, request_)] == want
+    old = _list("r_c", "r_a", "r_e")  # beside a new daemon that has r_b and r_d and answers for them
+    new = _list(*(r.name for r in select(_list("r_b", "r_d").robots, request_)))
+    assert [r.name for r in select(merge_lists([old, new]).robots, request_)] == want

@@ -109,3 +109,30 @@ def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_enc
 def test_columns_of_another_length_are_refused() -> None:
     with pytest.raises(ValueError, match="2 records"):
         RobotListEncoder().encode(0.0, _records(2), *([np.zeros(3)] * 5))
+
+
+def test_a_template_prepared_at_a_spawn_is_what_the_next_list_lays_out_and_none_is_kept() -> None:
+    enc = RobotListEncoder()
+    records = _records(3)
+    enc.encode(1.0, records, *[np.zeros(3) for _ in range(5)])
+    new, other = _records(2, start=50)
+    enc.prepare(new)
+    assert new.namespace in enc._ready
+    # the prepared bytes are laid out as they are, not encoded again: made another record's here,
+    # the list says the other record (what it would never do if it encoded the new one itself)
+    enc._ready[new.namespace] = (new, _template_of(other))
+    columns = [np.ones(4) for _ in range(5)]
+    assert enc.encode(2.0, [*records, new], *columns) == _expected(2.0, [*records, other], columns)
+    assert enc._ready == {}  # used once
+    # a template prepared after a list laid its robot out is forgotten by the next new layout
+    late = _records(1, start=60)[0]
+    enc.encode(3.0, [*records, late], *[np.ones(4) for _ in range(5)])
+    enc.prepare(late)
+    enc.encode(4.0, [*records[1:], late], *[np.ones(3) for _ in range(5)])
+    assert enc._ready == {}
+
+
+def _template_of(record: RobotRecord) -> tuple[bytes, list[int]]:
+    from simd.wire.list_codec import _template
+
+    return _template(record)
