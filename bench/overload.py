@@ -218,8 +218,9 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
             driver.wait_ready(120.0)
             pen = arena.extra
             paused = Probe(fleet, args.timeout, n)
-            t_end, k = time.monotonic() + args.paused_s, 0
             sleeper = Sleeper()
+            stack.callback(sleeper.stop)
+            t_end, k = time.monotonic() + args.paused_s, 0
             while time.monotonic() < t_end:
                 progress.update(f"{label} paused, driver attached: round {k}")
                 paused.cycle(pen, False, k)
@@ -240,8 +241,9 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
                 "tick_ms": round(c1.tick_s * 1e3, 1), "capacity_robots": c1.capacity_robots,
             }  # fmt: skip
             running = Probe(fleet, args.timeout, n)
-            t_end = time.monotonic() + args.running_s
             sleeper = Sleeper()
+            stack.callback(sleeper.stop)
+            t_end = time.monotonic() + args.running_s
             while time.monotonic() < t_end:
                 progress.update(f"{label} running: round {k}")
                 running.cycle(pen, True, k)

@@ -8,7 +8,7 @@ phase and prints it next to the requests' latencies, so a slow answer can be tol
 machine that gave nobody the time to answer (a run of 20 000 robots beside two other busy
 processes: this process woke up to 1 s late, p99 69 ms).
 
-    python -m bench.sleeper 10        # prints one JSON line after 10 s, or on EOF of stdin
+    python -m bench.sleeper 10        # READY, then one JSON line after 10 s (or on EOF of stdin)
 """
 
 from __future__ import annotations
@@ -43,17 +43,31 @@ def measure(stop: threading.Event, seconds: float) -> dict[str, Any]:
 class Sleeper:
     """The sleeping process, from the benchmark's side: :meth:`stop` gives its figures."""
 
-    def __init__(self) -> None:
+    def __init__(self, ready_timeout: float = 60.0) -> None:
+        self._result: dict[str, Any] | None = None
         self.proc = subprocess.Popen([sys.executable, "-m", "bench.sleeper", "3600"], stdin=subprocess.PIPE,
                                      stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)  # fmt: skip
+        # napping from here on: a phase's figures cover the phase, however slowly Python started
+        stdout = self.proc.stdout
+        assert stdout is not None
+        got: list[str] = []
+        reader = threading.Thread(target=lambda: got.append(stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(ready_timeout)
+        if not got or not got[0].startswith("READY"):
+            self.proc.kill()
+            raise RuntimeError(f"the sleeper was not ready within {ready_timeout:g} s")
 
     def stop(self) -> dict[str, Any]:
-        try:
-            out, _ = self.proc.communicate("", timeout=10.0)
-            return dict(json.loads(out.strip().splitlines()[-1]))
-        except (subprocess.TimeoutExpired, ValueError, IndexError, OSError):
-            self.proc.kill()
-            return {"n": 0}
+        """Its figures (once; later calls give the same)."""
+        if self._result is None:
+            try:
+                out, _ = self.proc.communicate("", timeout=10.0)
+                self._result = dict(json.loads(out.strip().splitlines()[-1]))
+            except (subprocess.TimeoutExpired, ValueError, IndexError, OSError):
+                self.proc.kill()
+                self._result = {"n": 0}
+        return self._result
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -66,6 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         stop.set()
 
     threading.Thread(target=watch_stdin, daemon=True).start()
+    print("READY", flush=True)
     print(json.dumps(measure(stop, seconds)), flush=True)
     return 0
 

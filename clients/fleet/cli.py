@@ -57,6 +57,7 @@ from fleetcommon.zenoh_config import (
 from protocol.control import Clock, RobotRecord
 from protocol.errors import ErrorCode, FleetError
 from protocol.keys import DEFAULT_PREFIX, Keys
+from protocol.names import check_name
 from protocol.programs import runnable
 
 EXIT_OK = 0
@@ -234,9 +235,18 @@ def _run_delete(client: FleetClient, args: argparse.Namespace, plan: object) -> 
 
 
 def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> int:
-    records = in_list_order(client.robots(args.names or None))
+    """Every robot, or the ones named (each name not there, or not a name, is one line on
+    stderr as ``fleet delete`` says it, and the exit code is 1)."""
+    refused: list[tuple[str, FleetError]] = []
+    asked = []
+    for name in args.names:
+        try:
+            asked.append(check_name(name))
+        except FleetError as e:  # told here, so that one bad name does not refuse the others
+            refused.append((name, e))
+    records = in_list_order(client.robots(asked) if args.names else client.robots())
     listed = {key for r in records for key in (r.name, r.namespace)}
-    missing = [name for name in args.names if name not in listed]
+    refused += [(name, _not_there(name)) for name in asked if name not in listed]
     if args.json:
         _print_json(records)
     elif records:
@@ -244,10 +254,14 @@ def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> in
         print("(x, y in m; yaw in rad; v in m/s; w in rad/s)", flush=True)
     elif not args.names:
         print("no robots; spawn one with: fleet spawn tb3_0 -2 -0.5", flush=True)
-    if missing:
-        print(f"fleet: no robot named {', '.join(missing)}", file=sys.stderr, flush=True)
-        return EXIT_REFUSED
-    return EXIT_OK
+    for name, why in sorted(refused, key=lambda r: args.names.index(r[0])):
+        _refused(why, name)
+    return EXIT_REFUSED if refused else EXIT_OK
+
+
+def _not_there(name: str) -> FleetError:
+    """What the daemon says of a robot that is not there (``fleet delete``'s words)."""
+    return FleetError(ErrorCode.NOT_FOUND, f"Entity [{name}] does not exist", "name")
 
 
 def _run_daemons(client: FleetClient, args: argparse.Namespace, plan: object) -> int:

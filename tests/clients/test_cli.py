@@ -139,10 +139,11 @@ def test_list_table_json_and_delete(daemon: Daemon) -> None:
     p = fleet("list", "TB3_2", "-e", ep)  # only the robots named
     assert p.returncode == 0, p.stderr
     assert [row.split()[0] for row in lines(p.stdout)[1:-1]] == ["burger_2"]
-    p = fleet("list", "tb3_0", "nope", "-e", ep)  # the ones there, and one line for the one not
+    p = fleet("list", "tb3_0", "nope", "no pe", "-e", ep)  # the ones there, a line for each other
     assert p.returncode == 1
     assert [row.split()[0] for row in lines(p.stdout)[1:-1]] == ["tb3_0"]
-    assert lines(p.stderr) == ["fleet: no robot named nope"]
+    assert lines(p.stderr)[0] == "fleet: nope: not_found: Entity [nope] does not exist"  # as delete says it
+    assert lines(p.stderr)[1].startswith("fleet: no pe: invalid_name: ") and len(lines(p.stderr)) == 2
 
     p = fleet("delete", "tb3_0", "TB3_2", "-e", ep)
     assert p.returncode == 0, p.stderr

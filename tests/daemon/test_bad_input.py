@@ -308,8 +308,34 @@ QUERY_CASES = [
     (key, case, body)
     for key in ("fleet/spawn", "fleet/delete", "fleet/sim/step", "fleet/sim/reset", "fleet/robots")
     for case, body in HOSTILE_BODIES[::2] + HOSTILE_BODIES[1:5:2]
-    if not (key == "fleet/robots" and "utf-8" in case)  # a list request reads no field
+    if not (key == "fleet/robots" and "utf-8" in case)  # a list reads names, after and limit only
 ]
+
+#: bodies that are bad in the fields a list request reads (protocol/listing.py), and the code
+LIST_CASES = [
+    ("invalid utf-8 in names", b'{"names": ["\xff\xfe"]}', "malformed"),
+    ("invalid utf-8 in after", b'{"after": "\xff", "limit": 3}', "malformed"),
+    ("names a string", b'{"names": "tb3_0"}', "malformed"),
+    ("a limit not a number", b'{"limit": [1]}', "malformed"),
+    ("a negative limit", b'{"limit": -5}', "invalid_value"),
+    ("a limit past 64 bits", b'{"limit": 18446744073709551616}', "invalid_value"),
+    ("100 001 names", msgspec.msgpack.encode({"names": [f"r{i}" for i in range(100_001)]}), "invalid_value"),
+    ("a wildcard for a name", b'{"names": ["*"]}', "invalid_name"),
+]
+
+
+@pytest.mark.parametrize(("case", "body", "code"), LIST_CASES, ids=[c for c, _, _ in LIST_CASES])
+def test_a_bad_list_request_is_refused_saying_why(
+    populated: tuple[Daemon, FleetClient], case: str, body: bytes, code: str
+) -> None:
+    d, c = populated
+    before = world_state(c)
+    with raw_session(d.endpoint) as s:
+        ok, err = get(s, "fleet/robots", body, 10.0)
+    assert ok is None and err is not None, case
+    assert decode_reply(err)["code"] == code, (case, decode_reply(err))
+    assert d.alive() and world_state(c) == before
+    assert "Traceback" not in d.log()
 
 
 @pytest.mark.parametrize(("key", "case", "body"), QUERY_CASES, ids=[f"{k} {c}" for k, c, _ in QUERY_CASES])

@@ -34,7 +34,7 @@ QUERY_KEYS = ["spawn", "delete", "robots", "world", "clock", "sim/pause", "sim/r
 PUT_KEYS = ["tb3_0/cmd_vel", "ghost/cmd_vel"]
 #: the protocol's field names, so that documents reach past "unknown field" into the decoders
 FIELDS = ["name", "namespace", "model", "x", "y", "yaw", "ticks", "seed", "cmd_vel", "observe", "linear", "angular",
-          "z", "format", "robots", "tb3_0"]  # fmt: skip
+          "z", "format", "robots", "tb3_0", "names", "after", "limit"]  # fmt: skip
 KNOWN_CODES = {c.value for c in ErrorCode} - {ErrorCode.INTERNAL.value}
 
 scalars = st.one_of(

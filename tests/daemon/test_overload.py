@@ -265,10 +265,14 @@ def test_a_spawn_a_delete_and_a_resume_never_wait_for_a_tick_however_long_it_tak
         assert (new.name, new.pose.x, new.pose.y) == ("new", 2.0, 2.0)
         assert [r.name for r in c.robots()] == ["r0", "r1", "new"] and c.clock().robots == 3
         assert "new" in c.alive()  # live from its answer on, as a spawn served between ticks is
+        # asked for by name or in a page too, before the simulation has made it
+        assert c.robots(["new"]) == [r for r in c.robots() if r.name == "new"] and c.robot("new") is not None
+        assert [r.name for r in c.robots_page("m", 5)] == ["new", "r0", "r1"]
         t0 = time.monotonic()
         gone = c.delete("r0")
         took["delete"] = time.monotonic() - t0
         assert gone.name == "r0" and [r.name for r in c.robots()] == ["r1", "new"]
+        assert c.robots(["r0", "new"]) == [r for r in c.robots() if r.name == "new"]  # gone for a named list too
         assert "r0" not in c.alive()  # its token went with the answer
         back = c.spawn("r0", -2.0, 2.0)  # the name again, before its delete is made
         assert back.pose.x == -2.0 and "r0" in c.alive()

@@ -117,6 +117,24 @@ def test_requests_are_dispatched_by_type_and_errors_reach_the_reply() -> None:
     assert isinstance(got["resume"], FleetError) and got["resume"].code is ErrorCode.NOT_ALLOWED
 
 
+def test_the_in_process_list_gives_the_named_robots_and_pages_and_refuses_bad_ones() -> None:
+    e, r = engine(lockstep=True)
+    for k, name in enumerate(["c", "a", "b"]):
+        e.submit(control.SpawnRequest(name=name, x=float(k)), r.reply("spawned"))
+    asks = {
+        "named": control.ListRequest(names=["b", "c", "nobody"]),
+        "page": control.ListRequest(after="a", limit=1),
+        "bad": control.ListRequest(limit=-1),
+    }
+    for what, request in asks.items():
+        e.submit(request, r.reply(what))
+    e.serve_pending()
+    got = dict(r.log)
+    assert [s.name for s in got["named"].robots] == ["c", "b"]  # type: ignore[attr-defined]  # spawn order
+    assert [s.name for s in got["page"].robots] == ["b"]  # type: ignore[attr-defined]  # name order, after "a"
+    assert isinstance(got["bad"], FleetError) and got["bad"].code is ErrorCode.INVALID_VALUE
+
+
 def test_a_full_inbox_refuses_at_once_and_never_replies_later() -> None:
     e, r = engine(lockstep=True)
     sent = 0
