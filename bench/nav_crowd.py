@@ -2,6 +2,8 @@
 
     python -m bench.nav_crowd                                # 10 burgers, turtlebot3_world, 12 seeds x 300 s
     python -m bench.nav_crowd --robots 1 --seeds 4           # a lone burger, for what the crowd adds
+    python -m bench.nav_crowd --first-seed 25 --seeds 24     # seeds 25-48 (held out from tuning)
+    python -m bench.nav_crowd --jobs 2                       # seeds in two processes (same numbers)
     python -m bench.nav_crowd --seeds 6 --seconds 200 --out crowd.json
 
 ``bench.nav_bench`` runs one daemon over the fleet protocol, and one run of ten robots is one
@@ -22,7 +24,10 @@ import json
 import math
 import statistics
 import sys
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
+from functools import partial
 
 import numpy as np
 import numpy.typing as npt
@@ -139,18 +144,23 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.nav_crowd", description=__doc__.split("\n\n")[0])
     p.add_argument("--robots", type=int, default=10)
     p.add_argument("--world", default="turtlebot3_world")
-    p.add_argument("--seeds", type=int, default=12, help="seeds 1..N (default: 12)")
+    p.add_argument("--seeds", type=int, default=12, help="how many seeds (default: 12)")
+    p.add_argument("--first-seed", type=int, default=1, help="the first of the seeds (default: 1)")
+    p.add_argument("--jobs", type=int, default=1, help="seeds run in this many processes at once (default: 1)")
     p.add_argument("--seconds", type=float, default=300.0, help="sim seconds per seed (default: 300)")
     p.add_argument("--out", help="also write every seed's goals as JSON here")
     args = p.parse_args(argv)
-    if args.robots < 1 or args.seeds < 1 or not args.seconds > 0:
-        p.error("--robots, --seeds and --seconds must be positive")
+    if args.robots < 1 or args.seeds < 1 or args.jobs < 1 or not args.seconds > 0:
+        p.error("--robots, --seeds, --jobs and --seconds must be positive")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     runs = []
-    for seed in range(1, args.seeds + 1):
-        run = run_seed(args.world, args.robots, args.seconds, seed)
-        runs.append(run)
-        mid = f"p50 {statistics.median(run.ratios):.3f}" if run.ratios else "no goal reached"
-        print(f"  seed {seed}: {len(run.ratios)} reached, failed {run.failed or 0}, {mid}", flush=True)
+    with ProcessPoolExecutor(args.jobs) if args.jobs > 1 else nullcontext() as pool:
+        each = partial(run_seed, args.world, args.robots, args.seconds)
+        done = pool.map(each, seeds) if pool is not None else map(each, seeds)
+        for seed, run in zip(seeds, done, strict=True):
+            runs.append(run)
+            mid = f"p50 {statistics.median(run.ratios):.3f}" if run.ratios else "no goal reached"
+            print(f"  seed {seed}: {len(run.ratios)} reached, failed {run.failed or 0}, {mid}", flush=True)
     ratios = sorted(r for run in runs for r in run.ratios)
     failed = sum(sum(run.failed.values()) for run in runs)
     if not ratios:
@@ -158,8 +168,9 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     q = np.percentile(ratios, [50, 75, 95])
     closest = min(run.closest_m for run in runs)
-    print(f"{args.robots} robots, {args.world}, {args.seeds} seeds x {args.seconds:g} s: {len(ratios)} goals reached, "
-          f"{failed} failed; time over the straight-line bound p50 {q[0]:.3f}, p75 {q[1]:.3f}, p95 {q[2]:.3f}; "
+    print(f"{args.robots} robots, {args.world}, seeds {seeds[0]}-{seeds[-1]} x {args.seconds:g} s: "
+          f"{len(ratios)} goals reached, {failed} failed; "
+          f"time over the straight-line bound p50 {q[0]:.3f}, p75 {q[1]:.3f}, p95 {q[2]:.3f}; "
           f"closest centres {closest:.3f} m")  # fmt: skip
     parts = [(r, p) for run in runs for r, p in zip(run.ratios, run.parts, strict=True)]
     middle = [p for r, p in parts if abs(r - q[0]) <= 0.1]
