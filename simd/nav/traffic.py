@@ -201,9 +201,10 @@ class Traffic:
 
     def _cut_route(self, m: Mover, k: int) -> None:
         """The robot's route from its ``k``-th step on is given up: promises and cells too."""
+        kept = {c for cells in m.needs[:k] for c in cells}
         for later in m.needs[k:]:
             for c in later:
-                if self.pending[c] == m.slot:
+                if self.pending[c] == m.slot and c not in kept:  # (a step it keeps may need it too)
                     self.pending[c] = FREE
         del m.route[k:]
         del m.needs[k:]
@@ -311,8 +312,8 @@ class Traffic:
             if float(m.dist[n]) >= here and not (leave & forbid) and depth == 0:
                 continue  # no nearer: staying is as good (and nobody needs its cells); a later one may be
             need = self.graph.sweep(frontier, k)
-            if n in forbid:
-                continue  # where a robot pushing it must go, or stands
+            if n in forbid or any(c in forbid for c in need[2:]):
+                continue  # where a robot pushing it must go, or stands (the side cells of a diagonal too)
             promised = {int(self.pending[c]) for c in need} - {FREE, m.slot}
             if promised:  # promised to a robot following another out of it: wait behind them
                 if m.waiting_for == FREE:
