@@ -228,10 +228,13 @@ class Floor:
         way = traffic.way(m)
         pts = [(x, y)]
         edge = self._edge(m, way) if self.costmap is not None else None
+        # (in the open, from the cell its first step starts from: one whose centre slipped back
+        # over the border behind it drives on along its step, not across to the step's end)
+        start = m.needs[0][0] if m.needs and self.costmap is not None else m.cell
         if way and m.cell != FREE:
-            pts += _onto([g.centre(m.cell)] + [g.centre(c) for c in way], x, y)
+            pts += _onto([g.centre(start)] + [g.centre(c) for c in way], x, y)
         elif edge is not None:
-            pts += _onto([g.centre(m.cell), edge], x, y)
+            pts += _onto([g.centre(start), edge], x, y)
         else:
             pts += [g.centre(c) for c in way]
         if edge is not None and way:
@@ -262,12 +265,11 @@ class Floor:
         claim is unchanged (the cells become its own as the leaders' bodies leave them whole);
         only it stands at the border, at speed, instead of at its own cell's centre. None when
         the next step's cells are not all its own or promised to it by robots on their way
-        out, or a diagonal step."""
+        out."""
         k = len(way)
-        frm = way[-1] if way else m.cell
-        # not into a diagonal step (its side cells are others' too: measured, more jams, docs/navigation.md)
-        if k >= len(m.route) or frm == FREE or len(m.needs[k]) != 2:
+        if k >= len(m.route):
             return None
+        frm = m.needs[k][0]  # the cell the step starts from
         leavers = self.traffic.next_leavers(m, k)
         if not leavers:
             return None
