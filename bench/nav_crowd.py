@@ -26,7 +26,7 @@ import statistics
 import sys
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from functools import partial
 
 import numpy as np
@@ -39,6 +39,7 @@ from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import WorldGeometry, load_world
 from simd.nav.flood import reachable
 from simd.nav.navigator import Navigator
+from simd.nav.robot import NavRobot
 
 TOLERANCE_M = 0.1
 #: goals and spawns this far apart at least (m)
@@ -57,6 +58,8 @@ class SeedRun:
     closest_m: float
     #: for each reached goal (as ``ratios``): seconds in each state, and the bound
     parts: list[dict[str, float]]
+    #: seconds robots were ``waiting``, by what they did and whom they waited for (``_waits``)
+    waits: dict[str, float] = field(default_factory=dict)
 
 
 def _doing(state: str, command: tuple[float, float]) -> str:
@@ -67,6 +70,27 @@ def _doing(state: str, command: tuple[float, float]) -> str:
     if abs(v) >= STILL_V:
         return "moving"
     return "turning" if abs(w) > TURNING_W else "standing"
+
+
+def _waits(nav: Navigator, robot: NavRobot, slots: dict[int, NavRobot]) -> str:
+    """What a ``waiting`` robot does, and whom it waits for: drives meanwhile (up to its
+    cell's border, behind one leaving the next cell), or stands behind one driving out of the
+    cell it wants (the cell is promised to it), one driving through or holding it, one making
+    way, one waiting itself, one turning or standing."""
+    if abs(robot.command[0]) >= STILL_V:
+        return "drives meanwhile"
+    floor = nav.floor
+    other = slots.get(floor.waiting_for(robot))
+    if other is None or not other.active:
+        return "stands behind one with no goal"
+    doing = _doing(other.state, other.command)
+    if doing == "moving":
+        traffic = floor.traffic
+        m = traffic.movers[robot.slot]
+        promised = bool(m.needs) and any(int(traffic.pending[c]) == m.slot for c in m.needs[0])
+        return "stands behind one driving out of its cell" if promised else "stands behind one driving through"
+    return {"yielding": "stands behind one making way", "waiting": "stands behind one waiting itself",
+            "turning": "stands behind one turning"}.get(doing, "stands behind one standing")  # fmt: skip
 
 
 def goal_points(nav: Navigator, world: WorldGeometry, model: RobotModel) -> npt.NDArray[np.float64]:
@@ -114,6 +138,7 @@ def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun
     for name in names:
         send(name)
     out = SeedRun(seed, [], {}, math.inf, [])
+    slots = {nav.robots[name].slot: nav.robots[name] for name in names}
     spent: dict[str, dict[str, float]] = {name: {} for name in names}
     dt = sim.config.dt
     for k in range(int(seconds / dt)):
@@ -125,6 +150,9 @@ def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun
             if robot.active:
                 doing = _doing(robot.state, robot.command)
                 spent[name][doing] = spent[name].get(doing, 0.0) + dt
+                if doing == "waiting":
+                    why = _waits(nav, robot, slots)
+                    out.waits[why] = out.waits.get(why, 0.0) + dt
         for r in nav.take_events().results:
             if r.status == "reached":
                 out.ratios.append(r.navigation_time / bound[r.robot])
@@ -176,6 +204,16 @@ def main(argv: list[str] | None = None) -> int:
     middle = [p for r, p in parts if abs(r - q[0]) <= 0.1]
     print(_where_time_goes("goals within 0.1 of the median", middle))
     print(_where_time_goes("all reached goals", [p for _, p in parts]))
+    waits: dict[str, float] = {}
+    for run in runs:
+        for k, v in run.waits.items():
+            waits[k] = waits.get(k, 0.0) + v
+    if waits:
+        total = sum(waits.values())
+        print(
+            f"  waiting ({total:.0f} s in all): "
+            + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(waits.items(), key=lambda kv: -kv[1]))
+        )
     if args.out:
         with open(args.out, "w") as f:
             json.dump([asdict(run) for run in runs], f)

@@ -26,6 +26,15 @@ def test_a_small_crowd_reaches_goals_and_a_seed_repeats(tmp_path: Path, capsys: 
             assert set(spent) <= {"planning", "moving", "turning", "standing", "waiting", "yielding", "blocked"}
             assert sum(spent.values()) == pytest.approx(ratio * parts["bound"], abs=0.07)
     assert "goals within 0.1 of the median" in printed and "all reached goals" in printed
+    for r in runs:  # the waiting, by what the robot did and whom it waited for
+        assert set(r["waits"]) <= {
+            "drives meanwhile", "stands behind one with no goal", "stands behind one driving out of its cell",
+            "stands behind one driving through", "stands behind one making way", "stands behind one waiting itself",
+            "stands behind one turning", "stands behind one standing",
+        }  # fmt: skip
+        waited = sum(parts.get("waiting", 0.0) for parts in r["parts"])  # (reached goals' part of it)
+        assert sum(r["waits"].values()) >= waited - 1e-6
+    assert "waiting (" in printed
     again = nav_crowd.run_seed("turtlebot3_world", 3, 60.0, 1)
     assert again.ratios == runs[0]["ratios"]  # lockstep, seeded: the same goals in the same times
 
