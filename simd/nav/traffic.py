@@ -413,11 +413,12 @@ class Traffic:
     def leaving(self, m: Mover, c: int) -> Mover | None:
         """The robot holding cell ``c`` that is on its way out of it, when ``c`` is promised
         to ``m`` (``m`` follows it in): its centre is elsewhere, none of its steps needs ``c``,
-        it holds a way on, and it does not wait for ``m``. Else None."""
+        and it does not wait for ``m`` (it may stand meanwhile: it will not come back, as
+        ``c`` is promised). Else None."""
         if self.pending[c] != m.slot:
             return None
         holder = self.movers.get(int(self.owner[c]))
-        if holder is None or holder.cell == c or any(c in n for n in holder.needs) or not self.way(holder):
+        if holder is None or holder.cell == c or any(c in n for n in holder.needs):
             return None
         return None if self._follows(holder, m.slot) else holder
 
