@@ -2,6 +2,8 @@
 
     python -m bench.nav_crowd                                # 10 burgers, turtlebot3_world, 12 seeds x 300 s
     python -m bench.nav_crowd --robots 1 --seeds 4           # a lone burger, for what the crowd adds
+    python -m bench.nav_crowd --first-seed 25 --seeds 24     # seeds 25-48 (held out from tuning)
+    python -m bench.nav_crowd --jobs 2                       # seeds in two processes (same numbers)
     python -m bench.nav_crowd --seeds 6 --seconds 200 --out crowd.json
 
 ``bench.nav_bench`` runs one daemon over the fleet protocol, and one run of ten robots is one
@@ -22,7 +24,10 @@ import json
 import math
 import statistics
 import sys
-from dataclasses import asdict, dataclass
+from concurrent.futures import ProcessPoolExecutor
+from contextlib import nullcontext
+from dataclasses import asdict, dataclass, field
+from functools import partial
 
 import numpy as np
 import numpy.typing as npt
@@ -34,6 +39,7 @@ from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import WorldGeometry, load_world
 from simd.nav.flood import reachable
 from simd.nav.navigator import Navigator
+from simd.nav.robot import NavRobot
 
 TOLERANCE_M = 0.1
 #: goals and spawns this far apart at least (m)
@@ -52,6 +58,8 @@ class SeedRun:
     closest_m: float
     #: for each reached goal (as ``ratios``): seconds in each state, and the bound
     parts: list[dict[str, float]]
+    #: seconds robots were ``waiting``, by what they did and whom they waited for (``_waits``)
+    waits: dict[str, float] = field(default_factory=dict)
 
 
 def _doing(state: str, command: tuple[float, float]) -> str:
@@ -62,6 +70,27 @@ def _doing(state: str, command: tuple[float, float]) -> str:
     if abs(v) >= STILL_V:
         return "moving"
     return "turning" if abs(w) > TURNING_W else "standing"
+
+
+def _waits(nav: Navigator, robot: NavRobot, slots: dict[int, NavRobot]) -> str:
+    """What a ``waiting`` robot does, and whom it waits for: drives meanwhile (up to its
+    cell's border, behind one leaving the next cell), or stands behind one driving out of the
+    cell it wants (the cell is promised to it), one driving through or holding it, one making
+    way, one waiting itself, one turning or standing."""
+    if abs(robot.command[0]) >= STILL_V:
+        return "drives meanwhile"
+    floor = nav.floor
+    other = slots.get(floor.waiting_for(robot))
+    if other is None or not other.active:
+        return "stands behind one with no goal"
+    doing = _doing(other.state, other.command)
+    if doing == "moving":
+        traffic = floor.traffic
+        m = traffic.movers[robot.slot]
+        promised = bool(m.needs) and any(int(traffic.pending[c]) == m.slot for c in m.needs[0])
+        return "stands behind one driving out of its cell" if promised else "stands behind one driving through"
+    return {"yielding": "stands behind one making way", "waiting": "stands behind one waiting itself",
+            "turning": "stands behind one turning"}.get(doing, "stands behind one standing")  # fmt: skip
 
 
 def goal_points(nav: Navigator, world: WorldGeometry, model: RobotModel) -> npt.NDArray[np.float64]:
@@ -109,6 +138,7 @@ def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun
     for name in names:
         send(name)
     out = SeedRun(seed, [], {}, math.inf, [])
+    slots = {nav.robots[name].slot: nav.robots[name] for name in names}
     spent: dict[str, dict[str, float]] = {name: {} for name in names}
     dt = sim.config.dt
     for k in range(int(seconds / dt)):
@@ -120,6 +150,9 @@ def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun
             if robot.active:
                 doing = _doing(robot.state, robot.command)
                 spent[name][doing] = spent[name].get(doing, 0.0) + dt
+                if doing == "waiting":
+                    why = _waits(nav, robot, slots)
+                    out.waits[why] = out.waits.get(why, 0.0) + dt
         for r in nav.take_events().results:
             if r.status == "reached":
                 out.ratios.append(r.navigation_time / bound[r.robot])
@@ -139,18 +172,23 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m bench.nav_crowd", description=__doc__.split("\n\n")[0])
     p.add_argument("--robots", type=int, default=10)
     p.add_argument("--world", default="turtlebot3_world")
-    p.add_argument("--seeds", type=int, default=12, help="seeds 1..N (default: 12)")
+    p.add_argument("--seeds", type=int, default=12, help="how many seeds (default: 12)")
+    p.add_argument("--first-seed", type=int, default=1, help="the first of the seeds (default: 1)")
+    p.add_argument("--jobs", type=int, default=1, help="seeds run in this many processes at once (default: 1)")
     p.add_argument("--seconds", type=float, default=300.0, help="sim seconds per seed (default: 300)")
     p.add_argument("--out", help="also write every seed's goals as JSON here")
     args = p.parse_args(argv)
-    if args.robots < 1 or args.seeds < 1 or not args.seconds > 0:
-        p.error("--robots, --seeds and --seconds must be positive")
+    if args.robots < 1 or args.seeds < 1 or args.jobs < 1 or not args.seconds > 0:
+        p.error("--robots, --seeds, --jobs and --seconds must be positive")
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     runs = []
-    for seed in range(1, args.seeds + 1):
-        run = run_seed(args.world, args.robots, args.seconds, seed)
-        runs.append(run)
-        mid = f"p50 {statistics.median(run.ratios):.3f}" if run.ratios else "no goal reached"
-        print(f"  seed {seed}: {len(run.ratios)} reached, failed {run.failed or 0}, {mid}", flush=True)
+    with ProcessPoolExecutor(args.jobs) if args.jobs > 1 else nullcontext() as pool:
+        each = partial(run_seed, args.world, args.robots, args.seconds)
+        done = pool.map(each, seeds) if pool is not None else map(each, seeds)
+        for seed, run in zip(seeds, done, strict=True):
+            runs.append(run)
+            mid = f"p50 {statistics.median(run.ratios):.3f}" if run.ratios else "no goal reached"
+            print(f"  seed {seed}: {len(run.ratios)} reached, failed {run.failed or 0}, {mid}", flush=True)
     ratios = sorted(r for run in runs for r in run.ratios)
     failed = sum(sum(run.failed.values()) for run in runs)
     if not ratios:
@@ -158,13 +196,24 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     q = np.percentile(ratios, [50, 75, 95])
     closest = min(run.closest_m for run in runs)
-    print(f"{args.robots} robots, {args.world}, {args.seeds} seeds x {args.seconds:g} s: {len(ratios)} goals reached, "
-          f"{failed} failed; time over the straight-line bound p50 {q[0]:.3f}, p75 {q[1]:.3f}, p95 {q[2]:.3f}; "
+    print(f"{args.robots} robots, {args.world}, seeds {seeds[0]}-{seeds[-1]} x {args.seconds:g} s: "
+          f"{len(ratios)} goals reached, {failed} failed; "
+          f"time over the straight-line bound p50 {q[0]:.3f}, p75 {q[1]:.3f}, p95 {q[2]:.3f}; "
           f"closest centres {closest:.3f} m")  # fmt: skip
     parts = [(r, p) for run in runs for r, p in zip(run.ratios, run.parts, strict=True)]
     middle = [p for r, p in parts if abs(r - q[0]) <= 0.1]
     print(_where_time_goes("goals within 0.1 of the median", middle))
     print(_where_time_goes("all reached goals", [p for _, p in parts]))
+    waits: dict[str, float] = {}
+    for run in runs:
+        for k, v in run.waits.items():
+            waits[k] = waits.get(k, 0.0) + v
+    if waits:
+        total = sum(waits.values())
+        print(
+            f"  waiting ({total:.0f} s in all): "
+            + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(waits.items(), key=lambda kv: -kv[1]))
+        )
     if args.out:
         with open(args.out, "w") as f:
             json.dump([asdict(run) for run in runs], f)

@@ -39,6 +39,10 @@ DETOUR_S = 3.0
 AROUND_S = 20.0
 #: in the open, a robot that waited this long (s) for another plans around it too
 JAM_S = 5.0
+#: a robot following another into a cell stops this far (m) short of leaving its own cell ...
+EDGE_SPARE_M = 0.03
+#: ... and keeps this much (m) between its body's circle and the leader's
+FOLLOW_GAP_M = 0.03
 #: cells a robot commits to ahead of the one it stands in (in the open: further, so that it
 #: can cut straight across them)
 AHEAD = 2
@@ -223,10 +227,18 @@ class Floor:
         model = robot.model
         way = traffic.way(m)
         pts = [(x, y)]
+        edge = self._edge(m, way) if self.costmap is not None else None
+        # (in the open, from the cell its first step starts from: one whose centre slipped back
+        # over the border behind it drives on along its step, not across to the step's end)
+        start = m.needs[0][0] if m.needs and self.costmap is not None else m.cell
         if way and m.cell != FREE:
-            pts += _onto([g.centre(m.cell)] + [g.centre(c) for c in way], x, y)
+            pts += _onto([g.centre(start)] + [g.centre(c) for c in way], x, y)
+        elif edge is not None:
+            pts += _onto([g.centre(start), edge], x, y)
         else:
             pts += [g.centre(c) for c in way]
+        if edge is not None and way:
+            pts.append(edge)
         last = way[-1] if way else m.cell
         robot.held_up_at_goal = False
         goal = robot.goal
@@ -240,11 +252,38 @@ class Floor:
                 if self._settles(m):
                     pts.append(g.centre(last))
                 robot.held_up_at_goal = True
-        elif not way and m.cell != FREE and self._settles(m):
+        elif not way and edge is None and m.cell != FREE and self._settles(m):
             pts.append(g.centre(m.cell))
         if self.costmap is not None and len(pts) > 2:
             pts = self._pulled(m, model, pts)
         return pts
+
+    def _edge(self, m: Mover, way: list[int]) -> tuple[float, float] | None:
+        """Where a robot following others out of the cells of its next step may drive before
+        those cells are its own: on towards them, up to where its centre would leave the last
+        cell it holds, and no nearer the leaders than their two circles and FOLLOW_GAP_M. Its
+        claim is unchanged (the cells become its own as the leaders' bodies leave them whole);
+        only it stands at the border, at speed, instead of at its own cell's centre. None when
+        the next step's cells are not all its own or promised to it by robots on their way
+        out."""
+        k = len(way)
+        if k >= len(m.route):
+            return None
+        frm = m.needs[k][0]  # the cell the step starts from
+        leavers = self.traffic.next_leavers(m, k)
+        if not leavers:
+            return None
+        g = self.graph
+        (ax, ay), (bx, by) = g.centre(frm), g.centre(m.route[k])
+        step = math.hypot(bx - ax, by - ay)
+        t = 0.5 - EDGE_SPARE_M / step  # (the segment between two neighbours' centres leaves the first halfway)
+        while t > 0.0:
+            px, py = ax + t * (bx - ax), ay + t * (by - ay)
+            if all(o.xy is None or math.hypot(o.xy[0] - px, o.xy[1] - py) >= m.radius + o.radius + FOLLOW_GAP_M
+                   for o in leavers):  # fmt: skip
+                return (px, py)
+            t -= 0.02 / step
+        return None
 
     def _near_goal(
         self, m: Mover, start: tuple[float, float], goal: tuple[float, float], tolerance: float
@@ -322,11 +361,17 @@ class Floor:
 
     def intrudes(self, robot: NavRobot, x: float, y: float) -> bool:
         """Whether the robot's body at (x, y) would reach into a cell another robot holds that
-        it does not reach into already."""
+        it does not reach into already (but for a cell promised to it that its holder is
+        leaving: ``_edge``; the guard on the two bodies, guards.too_close, stays)."""
         m = self._m(robot)
-        cells = [c for c in self.traffic.box(x, y, m.radius) if c not in m.box]
-        owners = self.traffic.owner[cells] if cells else np.zeros(0, np.int64)
-        return bool(np.any((owners != FREE) & (owners != m.slot)))
+        traffic = self.traffic
+        for c in traffic.box(x, y, m.radius):
+            if c in m.box:
+                continue
+            o = int(traffic.owner[c])
+            if o not in (FREE, m.slot) and (self.costmap is None or traffic.leaving(m, c) is None):
+                return True
+        return False
 
     def owner_at(self, wx: F64, wy: F64) -> I64:
         """The holder of each world point's cell (FREE off the floor)."""

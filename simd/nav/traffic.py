@@ -74,6 +74,8 @@ class Mover:
     yielding_to: int = FREE
     #: since when it waits for a robot that does not navigate (floor.py plans around it)
     still_since: float | None = None
+    #: where its centre was when it last stood (``stand``)
+    xy: tuple[float, float] | None = None
 
     @property
     def pushable(self) -> bool:
@@ -130,13 +132,17 @@ class Traffic:
         """The robot is at (x, y): it holds the cells under it (those free), reaches the next
         cell of its route when it is in it, and lets go of what it no longer needs."""
         g = self.graph
+        m.xy = (x, y)
         here = g.index(x, y)
         if here is not None:
             if here in m.route:  # reached the next cell of its route (or one further: cut across)
                 k = m.route.index(here)
-                m.cell = here
-                del m.route[: k + 1]
-                del m.needs[: k + 1]
+                if all(self.owner[c] == m.slot for cells in m.needs[: k + 1] for c in cells):
+                    m.cell = here
+                    del m.route[: k + 1]
+                    del m.needs[: k + 1]
+                # else its centre is over the border of a cell it follows another into, before
+                # the other has left it whole (floor.py's ``_edge``): the step is still to come
             elif m.cell == FREE or here != m.cell:
                 m.cell = here  # pushed off its cells, or placed: where it is now
         box = self.box(x, y, m.radius)
@@ -201,9 +207,10 @@ class Traffic:
 
     def _cut_route(self, m: Mover, k: int) -> None:
         """The robot's route from its ``k``-th step on is given up: promises and cells too."""
+        kept = {c for cells in m.needs[:k] for c in cells}
         for later in m.needs[k:]:
             for c in later:
-                if self.pending[c] == m.slot:
+                if self.pending[c] == m.slot and c not in kept:  # (a step it keeps may need it too)
                     self.pending[c] = FREE
         del m.route[k:]
         del m.needs[k:]
@@ -311,8 +318,8 @@ class Traffic:
             if float(m.dist[n]) >= here and not (leave & forbid) and depth == 0:
                 continue  # no nearer: staying is as good (and nobody needs its cells); a later one may be
             need = self.graph.sweep(frontier, k)
-            if n in forbid:
-                continue  # where a robot pushing it must go, or stands
+            if n in forbid or any(c in forbid for c in need[2:]):
+                continue  # where a robot pushing it must go, or stands (the side cells of a diagonal too)
             promised = {int(self.pending[c]) for c in need} - {FREE, m.slot}
             if promised:  # promised to a robot following another out of it: wait behind them
                 if m.waiting_for == FREE:
@@ -401,6 +408,31 @@ class Traffic:
             if any(self.owner[k] != m.slot for k in cells):
                 break
             out.append(c)
+        return out
+
+    def leaving(self, m: Mover, c: int) -> Mover | None:
+        """The robot holding cell ``c`` that is on its way out of it, when ``c`` is promised
+        to ``m`` (``m`` follows it in): its centre is elsewhere, none of its steps needs ``c``,
+        and it does not wait for ``m`` (it may stand meanwhile: it will not come back, as
+        ``c`` is promised). Else None."""
+        if self.pending[c] != m.slot:
+            return None
+        holder = self.movers.get(int(self.owner[c]))
+        if holder is None or holder.cell == c or any(c in n for n in holder.needs):
+            return None
+        return None if self._follows(holder, m.slot) else holder
+
+    def next_leavers(self, m: Mover, k: int) -> list[Mover] | None:
+        """For the robot's ``k``-th step: the robots still in its cells that are leaving them
+        (``leaving``), when every other cell of the step is the robot's own; else None."""
+        out = []
+        for c in m.needs[k]:
+            if self.owner[c] == m.slot:
+                continue
+            holder = self.leaving(m, c)
+            if holder is None:
+                return None
+            out.append(holder)
         return out
 
     def hold_free(self, m: Mover, cells: tuple[int, ...]) -> bool:
