@@ -455,7 +455,7 @@ class Navigator:
         floor = self.floor
         rows = np.array([self._row[r.namespace] for r in driven], dtype=np.int64)
         x, y, yaw = table.x[rows], table.y[rows], table.yaw[rows]
-        ways = [floor.way(r, float(x[k]), float(y[k])) for k, r in enumerate(driven)]
+        ways = [floor.way(r, float(x[k]), float(y[k]), float(yaw[k])) for k, r in enumerate(driven)]
         width = max(len(w) for w in ways)
         px = np.array([[p[0] for p in w] + [w[-1][0]] * (width - len(w)) for w in ways])
         py = np.array([[p[1] for p in w] + [w[-1][1]] * (width - len(w)) for w in ways])

@@ -326,8 +326,13 @@ def test_ten_robots_in_turtlebot3_world_keep_reaching_goals() -> None:
             send(r.robot)
     assert min(reached.values()) >= 3, reached
     assert sum(reached.values()) >= 100, reached
-    running = max(sim.time - robot.started for robot in nav.robots.values())
-    assert max(longest, running) < 2 * PATIENCE_S  # nothing hangs
+    # nothing hangs: goals end in time, and none still on has gone without getting nearer for
+    # the stall rule's time (one may be on longer in all: goals drawn within 10 cm of each other,
+    # as three of this seed's are, jam by their points until the rule ends one)
+    from simd.nav.navigator import STALL_PATIENCES
+
+    stalled = max(sim.time - robot.nearer_at for robot in nav.robots.values() if robot.active)
+    assert longest < 2 * PATIENCE_S and stalled < STALL_PATIENCES * PATIENCE_S
 
 
 def test_a_goal_that_gets_no_nearer_fails_blocked_whatever_its_states() -> None:
