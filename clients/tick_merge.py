@@ -65,8 +65,8 @@ class TickMerge:
         self._hold_s = hold_s
         self._clock = clock
         self._flush_after = flush_after
-        self._lock = threading.Lock()
-        self._handing_on = threading.Lock()
+        # reentrant: a callback may end its subscription (undeclare) while it is handed a tick
+        self._lock = threading.RLock()
         self._closed = False
         self._pending: dict[int, list[FleetOdometry]] = {}
         self._since: dict[int, float] = {}  # when each pending tick's first part came
@@ -75,23 +75,21 @@ class TickMerge:
 
     def add(self, part: FleetOdometry) -> None:
         key = _key(part.stamp)
-        with self._handing_on:  # (the timer's thread hands on too: one at a time, in order)
-            with self._lock:
-                out = [] if self._closed else self._take(key, part)
-                self._arm()
-            for msg in out:
-                self._emit(msg)
+        with self._lock:  # held while handing on: the timer's thread hands on too, in order
+            self._hand_on([] if self._closed else self._take(key, part))
 
     def flush(self) -> None:
         """Hand on the ticks that have waited ``hold_s`` with the parts they have (oldest first;
         the timer of ``flush_after`` calls this)."""
-        with self._handing_on:
-            with self._lock:
-                self._timer = None
-                out = [] if self._closed else self._overdue(0)
-                self._arm()
-            for msg in out:
-                self._emit(msg)
+        with self._lock:
+            self._timer = None
+            self._hand_on([] if self._closed else self._overdue(0))
+
+    def _hand_on(self, out: list[FleetOdometry]) -> None:
+        """Emit, then time the oldest tick still waiting (under the lock)."""
+        for msg in out:
+            self._emit(msg)
+        self._arm()
 
     def undeclare(self) -> None:
         """Stop: nothing more is handed on (a subscription that ends ends its merge too)."""

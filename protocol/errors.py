@@ -63,3 +63,8 @@ class FleetError(Exception):
 
     def __repr__(self) -> str:
         return f"FleetError({self.code.value!r}, {self.message!r}, field={self.field!r})"
+
+
+def not_found(key: str) -> FleetError:
+    """No robot has this name or namespace, in Gazebo's words (scripts match on them)."""
+    return FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")

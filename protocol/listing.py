@@ -18,8 +18,9 @@ from __future__ import annotations
 
 import bisect
 from collections.abc import Sequence
+from typing import Protocol, TypeVar
 
-from protocol.control import ListRequest, RobotRecord
+from protocol.control import ListRequest
 from protocol.errors import ErrorCode, FleetError
 from protocol.names import check_name
 
@@ -65,18 +66,10 @@ class NameIndex:
         self._row_of: dict[str, int] | None = None
         self._order: tuple[list[int], list[str]] | None = None  # rows by name, and their names
 
-    def _find(self, key: str) -> int | None:
-        for listed in (self._names, self._namespaces):
-            try:
-                return listed.index(key)
-            except ValueError:
-                pass
-        return None
-
     def _rows_of(self, keys: Sequence[str]) -> list[int]:
         """The rows of these names or namespaces, in spawn order, once each."""
         if len(keys) <= _SCANNED:
-            found = [self._find(key) for key in keys]
+            found = [find_row(self._names, self._namespaces, key) for key in keys]
         else:
             row_of = self._row_of
             if row_of is None:  # made whole before it is shared: other threads may ask at once
@@ -118,11 +111,36 @@ class NameIndex:
         return picked[: request.limit] if request.limit else picked
 
 
-def select(records: list[RobotRecord], request: ListRequest) -> list[RobotRecord]:
-    """The records the request asks for among ``records`` (a reply, or several daemons'
-    merged), in the order of the answer: what a client applies to what it got, so that a
-    daemon older than these fields (it answers every robot) gives the right answer too."""
+def find_row(names: Sequence[str], namespaces: Sequence[str], key: str) -> int | None:
+    """The row of the robot with this name or namespace, or None: a scan of the name lists in C
+    (~0.3 ms at 20 000 robots, where a dict of them built for each new fleet took ~10)."""
+    for listed in (names, namespaces):
+        try:
+            return listed.index(key)
+        except ValueError:
+            pass
+    return None
+
+
+class Named(Protocol):
+    """A robot as a list has it: a record, or the simulation's state of it."""
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def namespace(self) -> str: ...
+
+
+N = TypeVar("N", bound=Named)
+
+
+def select(robots: list[N], request: ListRequest) -> list[N]:
+    """The robots the request asks for among ``robots`` (in spawn order, or several daemons'
+    merged), in the order of the answer: what the in-process engine answers, and what a client
+    applies to what it got, so that a daemon older than these fields (it answers every robot)
+    gives the right answer too."""
     if whole(request):
-        return records
-    index = NameIndex([r.name for r in records], [r.namespace for r in records])
-    return [records[k] for k in index.rows(request)]
+        return robots
+    index = NameIndex([r.name for r in robots], [r.namespace for r in robots])
+    return [robots[k] for k in index.rows(request)]

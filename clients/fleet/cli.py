@@ -55,7 +55,7 @@ from fleetcommon.zenoh_config import (
     options_from_args,
 )
 from protocol.control import Clock, RobotRecord
-from protocol.errors import ErrorCode, FleetError
+from protocol.errors import ErrorCode, FleetError, not_found
 from protocol.keys import DEFAULT_PREFIX, Keys
 from protocol.names import check_name
 from protocol.programs import runnable
@@ -246,7 +246,7 @@ def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> in
             refused.append((name, e))
     records = in_list_order(client.robots(asked) if args.names else client.robots())
     listed = {key for r in records for key in (r.name, r.namespace)}
-    refused += [(name, _not_there(name)) for name in asked if name not in listed]
+    refused += [(name, not_found(name)) for name in asked if name not in listed]
     if args.json:
         _print_json(records)
     elif records:
@@ -257,11 +257,6 @@ def _run_list(client: FleetClient, args: argparse.Namespace, plan: object) -> in
     for name, why in sorted(refused, key=lambda r: args.names.index(r[0])):
         _refused(why, name)
     return EXIT_REFUSED if refused else EXIT_OK
-
-
-def _not_there(name: str) -> FleetError:
-    """What the daemon says of a robot that is not there (``fleet delete``'s words)."""
-    return FleetError(ErrorCode.NOT_FOUND, f"Entity [{name}] does not exist", "name")
 
 
 def _run_daemons(client: FleetClient, args: argparse.Namespace, plan: object) -> int:

@@ -19,7 +19,7 @@ import numpy as np
 from fleetcommon.arrays import F32, F64, I64
 from protocol.control import MODELS as MODEL_NAMES
 from protocol.control import SpawnRequest
-from protocol.errors import ErrorCode, FleetError
+from protocol.errors import ErrorCode, FleetError, not_found
 from protocol.names import check_name
 from simd.core import drive, sensor_model
 from simd.core.ghosts import GhostColumns, Ghosts
@@ -273,7 +273,7 @@ class Simulation:
         robots = [self.robots.find(key) for key in keys]
         for key, robot in zip(keys, robots, strict=True):
             if robot is None:
-                raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
+                raise not_found(key)
         found = [r for r in robots if r is not None]
         if len({r.rid for r in found}) < len(found):
             raise FleetError(ErrorCode.INVALID_VALUE, "a robot is named twice", "name")
@@ -291,7 +291,7 @@ class Simulation:
         its odometry starts again at the new pose, as a spawned robot's does."""
         robot = self.robots.find(key)
         if robot is None:
-            raise FleetError(ErrorCode.NOT_FOUND, f"Entity [{key}] does not exist", "name")
+            raise not_found(key)
         for fname, v in (("x", x), ("y", y), ("yaw", yaw)):
             if not math.isfinite(v):
                 raise FleetError(ErrorCode.NON_FINITE, f"{fname} must be finite, got {v}", fname)

@@ -502,7 +502,4 @@ def _send(reply: Reply, result: Result | FleetError) -> None:
 def _listed(states: list[RobotState], request: ListRequest) -> list[RobotState]:
     """The robots a list request asks for (protocol/listing.py): all, the named, or a page."""
     listing.check(request)
-    if listing.whole(request):
-        return states
-    index = listing.NameIndex([s.name for s in states], [s.namespace for s in states])
-    return [states[k] for k in index.rows(request)]
+    return listing.select(states, request)

@@ -291,7 +291,6 @@ class Floor:
         turtlebot3_world: 1.196 -> 1.140 of the straight-line bound, bench.nav_crowd; ten: 1.364 -> 1.353)."""
         assert self.costmap is not None and m.dist is not None
         g = self.graph
-        cm = self.costmap
         need = body_radius(model)
         dist = m.dist
         moves = g.moves(model)
@@ -308,19 +307,13 @@ class Floor:
             ahead.append(g.centre(c))
         x, y = here
         for tx, ty in reversed(ahead):
-            length = math.hypot(tx - x, ty - y)
-            if length < 1e-6:
+            if math.hypot(tx - x, ty - y) < 1e-6:
                 return None
-            n = max(2, math.ceil(length / 0.02) + 1)
-            ts = np.linspace(0.0, 1.0, n)
-            xs, ys = x + ts * (tx - x), y + ts * (ty - y)
-            col = np.floor((xs - cm.grid.x0) / cm.grid.resolution).astype(np.int64)
-            row = np.floor((ys - cm.grid.y0) / cm.grid.resolution).astype(np.int64)
-            on = (col >= 0) & (col < cm.grid.width) & (row >= 0) & (row < cm.grid.height)
-            if not on.all() or (cm.clearance[row[1:], col[1:]] < need).any():
+            line = self._clear_line(here, (tx, ty), need, 0.02)
+            if line is None:
                 continue
             best = None
-            for a, b in zip(xs.tolist(), ys.tolist(), strict=True):
+            for a, b in zip(*line, strict=True):
                 if not self._crossable(m, self.traffic.box(a, b, m.radius + AIM_SPARE_M)):
                     break
                 if g.index(a, b) == way[-1]:
@@ -394,22 +387,32 @@ class Floor:
     def _pulled(self, m: Mover, model: RobotModel, pts: list[tuple[float, float]]) -> list[tuple[float, float]]:
         """The way cut straight to the farthest of its points that the robot reaches on a
         straight line clear of walls and of cells other robots hold (it holds them as it goes)."""
-        assert self.costmap is not None
         traffic = self.traffic
-        cm = self.costmap
         need = body_radius(model)
-        x, y = pts[0]
         for j in range(len(pts) - 1, 1, -1):
-            tx, ty = pts[j]
-            n = max(2, math.ceil(math.hypot(tx - x, ty - y) / 0.05) + 1)
-            ts = np.linspace(0.0, 1.0, n)
-            xs, ys = x + ts * (tx - x), y + ts * (ty - y)
-            cells = [cm.grid.cell(float(a), float(b)) for a, b in zip(xs, ys, strict=True)]
-            if any(c is None or cm.clearance[c] < need for c in cells[1:]):
+            line = self._clear_line(pts[0], pts[j], need, 0.05)
+            if line is None:
                 continue
-            if not any(self._others(m, traffic.box(float(a), float(b), m.radius)) for a, b in zip(xs, ys, strict=True)):
+            if not any(self._others(m, traffic.box(a, b, m.radius)) for a, b in zip(*line, strict=True)):
                 return [pts[0], *pts[j:]]
         return pts
+
+    def _clear_line(
+        self, start: tuple[float, float], end: tuple[float, float], need: float, step: float
+    ) -> tuple[list[float], list[float]] | None:
+        """The points every ``step`` (m) of the straight line from ``start`` to ``end``, if it
+        stays on the map with ``need`` (m) of clearance from walls past its start; else None."""
+        assert self.costmap is not None
+        grid, clearance = self.costmap.grid, self.costmap.clearance
+        (x, y), (tx, ty) = start, end
+        ts = np.linspace(0.0, 1.0, max(2, math.ceil(math.hypot(tx - x, ty - y) / step) + 1))
+        xs, ys = x + ts * (tx - x), y + ts * (ty - y)
+        col = np.floor((xs - grid.x0) / grid.resolution).astype(np.int64)[1:]
+        row = np.floor((ys - grid.y0) / grid.resolution).astype(np.int64)[1:]
+        on = (col >= 0) & (col < grid.width) & (row >= 0) & (row < grid.height)
+        if not on.all() or (clearance[row, col] < need).any():
+            return None
+        return xs.tolist(), ys.tolist()
 
     def _others(self, m: Mover, cells: tuple[int, ...]) -> bool:
         owner = self.traffic.owner

@@ -149,3 +149,16 @@ def test_the_timer_hands_on_a_tick_whose_part_never_comes_and_stops_with_the_sub
     m.undeclare()  # before its hold is over: never handed on
     time.sleep(0.2)
     assert len(out) == 1
+
+
+def test_a_callback_may_end_the_merge_it_is_handed_a_tick_by() -> None:
+    out: list[FleetOdometry] = []
+
+    def handed(msg: FleetOdometry) -> None:
+        out.append(msg)
+        m.undeclare()  # the subscription ends from its own callback
+
+    m = TickMerge(lambda: 1, handed)
+    m.add(part(1, "a0"))
+    m.add(part(2, "a0"))  # ended: nothing more
+    assert _ticks(out) == [(1, ["a0"])]

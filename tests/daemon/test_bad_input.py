@@ -324,33 +324,33 @@ LIST_CASES = [
 ]
 
 
+def _refused(populated: tuple[Daemon, FleetClient], key: str, body: bytes) -> dict[str, Any]:
+    """The error reply to ``body`` on ``key``, once the daemon is seen alive, unchanged and
+    without a traceback in its log."""
+    d, c = populated
+    before = world_state(c)
+    with raw_session(d.endpoint) as s:
+        ok, err = get(s, key, body, 10.0)
+    assert ok is None and err is not None
+    assert d.alive() and world_state(c) == before
+    assert "Traceback" not in d.log()
+    return decode_reply(err)
+
+
 @pytest.mark.parametrize(("case", "body", "code"), LIST_CASES, ids=[c for c, _, _ in LIST_CASES])
 def test_a_bad_list_request_is_refused_saying_why(
     populated: tuple[Daemon, FleetClient], case: str, body: bytes, code: str
 ) -> None:
-    d, c = populated
-    before = world_state(c)
-    with raw_session(d.endpoint) as s:
-        ok, err = get(s, "fleet/robots", body, 10.0)
-    assert ok is None and err is not None, case
-    assert decode_reply(err)["code"] == code, (case, decode_reply(err))
-    assert d.alive() and world_state(c) == before
-    assert "Traceback" not in d.log()
+    reply = _refused(populated, "fleet/robots", body)
+    assert reply["code"] == code, (case, reply)
 
 
 @pytest.mark.parametrize(("key", "case", "body"), QUERY_CASES, ids=[f"{k} {c}" for k, c, _ in QUERY_CASES])
 def test_hostile_query_bodies_get_a_structured_error_not_an_internal_one(
     populated: tuple[Daemon, FleetClient], key: str, case: str, body: bytes
 ) -> None:
-    d, c = populated
-    before = world_state(c)
-    with raw_session(d.endpoint) as s:
-        ok, err = get(s, key, body, 10.0)
-    assert ok is None and err is not None, case
-    reply = decode_reply(err)
-    assert reply["code"] in ("malformed", "too_large") and "internal" not in reply["message"], reply
-    assert d.alive() and world_state(c) == before
-    assert "Traceback" not in d.log()
+    reply = _refused(populated, key, body)
+    assert reply["code"] in ("malformed", "too_large") and "internal" not in reply["message"], (case, reply)
 
 
 def test_a_wildcard_get_reads_and_never_acts(daemon_factory: Any) -> None:
