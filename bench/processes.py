@@ -66,6 +66,16 @@ def stop_process(proc: subprocess.Popen[Any], grace: float) -> None:
             proc.wait(grace)
 
 
+def terminate(proc: subprocess.Popen[Any], grace: float) -> None:
+    """Ask a process to stop (SIGTERM, what simd and the router end cleanly on), then as
+    ``stop_process``. (Waiting ``grace`` for a process nobody asked to stop only waits:
+    bench.scale_bench spent 10 s on each of its router and daemons that way.)"""
+    if proc.poll() is None:
+        with contextlib.suppress(OSError):
+            proc.send_signal(signal.SIGTERM)
+    stop_process(proc, grace)
+
+
 @dataclass
 class DaemonProc:
     """A running ``simd``; its log is kept so that a failed run can report why the daemon died."""
@@ -88,10 +98,7 @@ class DaemonProc:
             return ""
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            with contextlib.suppress(OSError):
-                self.proc.send_signal(signal.SIGTERM)
-        stop_process(self.proc, 10.0)
+        terminate(self.proc, 10.0)
 
 
 def start_daemon(world: Path, rtf: float, max_robots: int, tmp: Path, extra: Sequence[str] = ()) -> DaemonProc:

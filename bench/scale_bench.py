@@ -41,7 +41,7 @@ from bench.arena import PROBE, make_arena, write_world
 from bench.client import Fleet, spawn_request
 from bench.driver import Driver
 from bench.measure import proc_cpu_seconds
-from bench.processes import free_port, stop_process
+from bench.processes import free_port, terminate
 from bench.progress import Progress
 from bench.report import machine_info, machine_line
 from bench.subscriber import Subscriber
@@ -98,14 +98,14 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
             logs = tmp / f"{k}x{n}"  # each run's logs apart, for a failed run to be read after
             logs.mkdir(exist_ok=True)
             procs["router"] = _start([sys.executable, "-m", "simd.router", "-l", router_ep], logs / "router.log")
-            stack.callback(stop_process, procs["router"], 10.0)
+            stack.callback(terminate, procs["router"], 10.0)
             ids = [f"d{i}" for i in range(k)]
             for d in ids:
                 cmd = [sys.executable, "-m", "simd.cli", "-m", "client", "-e", router_ep, "--join", "--id", d,
                        "--world", str(world), "--max-robots", str(n + 100), "--seed", "1", "--log-level", "warning",
                        "--cmd-timeout", "0"]  # fmt: skip
                 procs[d] = _start(cmd, logs / f"simd-{d}.log")
-                stack.callback(stop_process, procs[d], 10.0)
+                stack.callback(terminate, procs[d], 10.0)
             progress.update(f"{label} starting", force=True)
             fleet = Fleet(router_ep)
             stack.callback(fleet.close)
