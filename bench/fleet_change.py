@@ -10,7 +10,8 @@ holds its adapter's work, a delete's too; the tick after a change lays out the p
 again). Between them it times the MessagePack robot list (what ``P/robots`` answers: the
 adapter's records in roster order, encoded from templates by simd/wire/list_codec.py) right
 after the spawn, right after the delete and again with nothing changed, and after the
-delete one robot's record asked by name and a page of 1 000 (protocol/listing.py). Medians
+delete one robot's record asked by name and a page of 1 000 (protocol/listing.py), as
+``P/robots`` answers them in MessagePack. Medians
 of the rounds, in wall milliseconds and in the simulation thread's CPU milliseconds (which
 other load on a shared machine inflates less); compare runs side by side.
 """
@@ -89,8 +90,8 @@ def main(argv: list[str] | None = None) -> int:
             timed("delete", engine.serve_pending)
             timed("list after a delete", robot_list)
             one, page = ListRequest(names=[f"r{k * 997 % n}"]), ListRequest(after=f"r{k * 1999 % n}", limit=1000)
-            timed("one by name, after", partial(adapter._robot_list, one))
-            timed("a page of 1000, after", partial(adapter._robot_list, page))
+            timed("one by name, after", partial(adapter.msgpack_list, one))
+            timed("a page of 1000, after", partial(adapter.msgpack_list, page))
             timed("tick after", engine.tick)
             timed("tick, nothing changed", engine.tick)
             timed("list, nothing changed", robot_list)

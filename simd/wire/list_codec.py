@@ -21,7 +21,7 @@ Python loop took ~40 (``python -m bench.fleet_change --robots 20000``).
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import msgspec
@@ -162,11 +162,14 @@ class RobotListEncoder:
         return _template(record)
 
     def encode(self, time: float, records: list[RobotRecord], x: F64, y: F64, yaw: F64, linear: F64,
-               angular: F64) -> bytearray:  # fmt: skip
+               angular: F64, *, rows: Sequence[int] | None = None) -> bytearray:  # fmt: skip
         """The MessagePack of ``RobotList(stamp=time, robots=records)`` with row ``k``'s pose
         and twist put into ``records[k]`` (a bytearray: the reply's only copy of the buffer).
         ``records`` is laid out again whenever it is another list than the last one: the caller
-        makes a new list when the fleet changes, and keeps the records of the robots that stay."""
+        makes a new list when the fleet changes, and keeps the records of the robots that stay.
+        With ``rows``, the list holds those rows only, in that order (a page of a big fleet:
+        its records' bytes picked from the fleet's layout, ~1 ms for 1 000 of 20 000 robots,
+        where building and encoding the structs took ~5)."""
         n = len(records)
         columns = (x, y, yaw, linear, angular)
         if any(len(c) != n for c in columns):
@@ -180,6 +183,8 @@ class RobotListEncoder:
                 layout = self._layout = layout.successor(records, self._template)
                 if self._ready:
                     self._drop_laid_out(layout)
+        if rows is not None:
+            return _picked(head[:-1], layout, np.asarray(rows, dtype=np.int64).reshape(-1), columns)
         prefix = head[:-1] + _array_header(n)
         out = bytearray(prefix) + layout.buffer.data
         body = np.frombuffer(out, dtype=np.uint8, offset=len(prefix))
@@ -187,3 +192,24 @@ class RobotListEncoder:
             numbers = np.ascontiguousarray(column, dtype=">f8").view(np.uint8).reshape(n, 8)
             body[layout.scatter[k]] = numbers
         return out
+
+
+def _picked(head: bytes, layout: _Layout, rows: npt.NDArray[np.int64], columns: tuple[F64, ...]) -> bytearray:
+    """The list of the layout's ``rows`` (in that order) after ``head``: each row's bytes
+    gathered from the layout's buffer, and its five numbers written into them."""
+    if len(rows) and (rows.min() < 0 or rows.max() >= len(layout.starts)):
+        raise ValueError(f"rows outside the {len(layout.starts)} records")
+    lengths = layout.lengths[rows]
+    starts = np.zeros(len(rows), dtype=np.int64)
+    np.cumsum(lengths[:-1], out=starts[1:])
+    # every byte of the picked records: for each, its place in the layout's buffer
+    total = int(lengths.sum())
+    source = np.repeat(layout.starts[rows] - starts, lengths) + np.arange(total, dtype=np.int64)
+    prefix = head + _array_header(len(rows))
+    out = bytearray(prefix) + layout.buffer[source].data
+    body = np.frombuffer(out, dtype=np.uint8, offset=len(prefix))
+    places = (starts[:, None] + layout.marks[rows]).T  # (5, rows): where each number starts
+    for k, column in enumerate(columns):
+        numbers = np.ascontiguousarray(np.asarray(column)[rows], dtype=">f8").view(np.uint8).reshape(len(rows), 8)
+        body[places[k][:, None] + _BYTE] = numbers
+    return out

@@ -19,6 +19,7 @@ import pytest
 
 from clients import FleetClient, wait_until
 from protocol import ErrorCode, FleetError, LaserScan, Odometry
+from protocol.control import RobotRecord, SpawnRequest
 from tests.conftest import ROOT, Daemon, free_port, simd_command
 from tests.zraw import Collector, get_json, matching, raw_session
 
@@ -256,6 +257,28 @@ def test_a_list_of_named_robots_and_a_fleet_read_page_by_page(daemon: Daemon) ->
             ok, err = get_json(s, "fleet/robots", body)
             assert ok is None and err["code"] == code and err.get("field") == field, (body, err)
     assert c.robots() == everyone  # refused, and nothing changed
+
+
+def test_a_page_of_many_robots_is_the_same_records_as_json_gives(daemon_factory: Callable[..., Daemon]) -> None:
+    """A page of more than a few robots is written from the fleet's byte templates
+    (simd/wire/list_codec.py); JSON and a few robots by name come from their records: the
+    same robots either way, before and after the fleet changes."""
+    d = daemon_factory("--world", "empty", "--paused")
+    c = d.client()
+    names = [f"p{k:03d}" for k in range(150)]
+    c.spawn_many(SpawnRequest(name=n, x=-4.0 + 0.6 * (k % 14), y=-4.0 + 0.6 * (k // 14)) for k, n in enumerate(names))
+    for change in (None, "p010", "p075"):
+        if change is not None:
+            c.delete(change)
+            names.remove(change)
+        everyone = {r.name: r for r in c.robots()}
+        page = c.robots_page("p004", 100)
+        assert [r.name for r in page] == sorted(names)[5:105]
+        assert page == [everyone[r.name] for r in page]
+        with raw_session(d.endpoint) as s:
+            ok, err = get_json(s, "fleet/robots", {"after": "p004", "limit": 100})
+        assert err is None and msgspec.convert(ok["robots"], list[RobotRecord]) == page
+        assert c.robots([r.name for r in page[:3]]) == page[:3]  # a few, from their records
 
 
 def test_world_and_clock(daemon: Daemon) -> None:

@@ -70,6 +70,10 @@ from simd.wire.list_codec import RobotListEncoder
 
 log = logging.getLogger(__name__)
 
+#: a MessagePack list of more robots than this is written from the fleet's byte templates (a
+#: page); of fewer, from their records (one robot by name: no layout of the fleet needed)
+FEW_ROWS = 64
+
 
 class FleetAdapter:
     """Serves one engine on one zenoh session under one key prefix."""
@@ -130,10 +134,8 @@ class FleetAdapter:
             except FleetError as e:
                 pending.error(e)
                 return
-            if pending.fmt == "msgpack" and listing.whole(request):
-                r = self.engine.roster_now()
-                pending.ok_encoded(self._list_encoder.encode(r.time, self._list_records(r), r.x, r.y, r.yaw,
-                                                             r.linear, r.angular))  # fmt: skip
+            if pending.fmt == "msgpack":
+                pending.ok_encoded(self.msgpack_list(request))
             else:
                 _answer(pending, self._robot_list(request))
             return
@@ -181,18 +183,31 @@ class FleetAdapter:
         else:
             self.outbox.put_urgent(partial(self.publisher.remove_robot, ns, self.engine.deleted_at(), publishers=False))
 
-    def _robot_list(self, request: ListRequest) -> RobotList:
+    def msgpack_list(self, request: ListRequest) -> bytes | bytearray:
+        """The MessagePack answer to a list request (checked: listing.check) on the query's
+        thread. The whole list and a page are written from byte templates of the robots'
+        records (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60; a page of
+        1 000 among 20 000 in ~1 ms instead of ~5), a few robots from their records."""
+        r = self.engine.roster_now()
+        rows = None if listing.whole(request) else self._name_index(r).rows(request)
+        if rows is None or len(rows) > FEW_ROWS:
+            records = self._list_records(r)
+            return self._list_encoder.encode(r.time, records, r.x, r.y, r.yaw, r.linear, r.angular, rows=rows)
+        return encode(self._robot_list(request, r, rows))
+
+    def _robot_list(self, request: ListRequest, roster: Roster | None = None, rows: list[int] | None = None
+                    ) -> RobotList:  # fmt: skip
         """The robots a list request asks for (protocol/listing.py) from the engine's latest
         status (simd/engine/status.py), on the query's thread: each robot's record is kept from
-        its spawn, with the pose and twist of now put in. What a JSON list and a page are made
-        of; the whole list in MessagePack is written from byte templates of the same records
-        (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60)."""
-        roster = self.engine.roster_now()
+        its spawn, with the pose and twist of now put in: a JSON list, and a few robots in
+        MessagePack (:meth:`msgpack_list`). ``rows``: the request's rows of ``roster``, when the
+        caller has them."""
+        roster = roster if roster is not None else self.engine.roster_now()
         if listing.whole(request):
             records = self._list_records(roster)
             columns = (roster.x, roster.y, roster.yaw, roster.linear, roster.angular)
         else:  # some robots: their records looked up, not the fleet's laid out
-            rows = self._name_index(roster).rows(request)
+            rows = rows if rows is not None else self._name_index(roster).rows(request)
             records = [self._record_of(roster, k) for k in rows]
             columns = (roster.x[rows], roster.y[rows], roster.yaw[rows], roster.linear[rows], roster.angular[rows])
         replace = msgspec.structs.replace
