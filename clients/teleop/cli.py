@@ -166,7 +166,8 @@ class Teleop:
 
     def _watch_daemon(self) -> None:
         """Poll the clock: 'no daemon' when nothing answers, paused state; refetch the
-        robot's record after it came back (its model, hence its limits, may differ)."""
+        robot's record after it came back (its model, hence its limits, may differ) and ask
+        for its latest messages, as following it starts again."""
         while not self._stop.wait(POLL_PERIOD):
             try:
                 clock = self.client.clock()
@@ -177,6 +178,10 @@ class Teleop:
                     if rec is not None:
                         self.seen.new_record = rec
                         self._refresh_record.clear()
+                        # following it again: in a big fleet a (restarted) daemon declares the
+                        # publishers of robots asked for by name first (FleetClient.on_odom)
+                        self.client.latest_odom(self.namespace)
+                        self.client.latest_scan(self.namespace)
             except FleetError:
                 if self.seen.daemon_up:
                     self._refresh_record.set()

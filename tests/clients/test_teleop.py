@@ -28,6 +28,7 @@ from clients.teleop.model import LIN_RAMP
 from fleetcommon.zenoh_config import ZenohOptions
 from protocol import Twist
 from tests.conftest import ROOT, Daemon, free_port, simd_command
+from tests.daemon.test_followers import BIG_FLEET, big_lockstep_fleet
 
 BURGER = (0.22, 2.84)
 WAFFLE = (0.26, 1.82)
@@ -265,3 +266,24 @@ def test_teleop_in_a_real_terminal(daemon_factory: Callable[..., Daemon], tmp_pa
     finally:
         subprocess.run([*tmux, "kill-server"], capture_output=True)
         socket_path.unlink(missing_ok=True)  # tmux leaves it behind when the session ended by itself
+
+
+def test_teleop_of_the_last_robot_of_a_big_fleet_shows_its_odometry_after_one_tick(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
+    """Issue 33: the daemon declares robots' publishers a few at a time in spawn order; the
+    robot a teleop drives is declared first, whatever its place (lockstep: no tick unasked)."""
+    d, stepper = big_lockstep_fleet(daemon_factory)
+    last = f"r{BIG_FLEET - 1}"
+    tele = Teleop.open(last, ZenohOptions(mode="client", connect=[d.endpoint]), timeout=10.0)
+    try:
+        assert tele.seen.odom is None
+        start = stepper.clock().tick
+        stepper.step(1)
+        assert wait_until(lambda: tele.seen.odom is not None, 5.0), "no odometry after one tick"
+        odom = tele.seen.odom
+        assert odom is not None and round(odom.header.stamp.to_seconds() * 30) == start + 1
+        stepper.step(5)
+        assert wait_until(lambda: tele.seen.scan_at > 0, 5.0), "no scan within one 5 Hz period"
+    finally:
+        tele.close()

@@ -9,7 +9,9 @@ learns from zenoh (a matching listener, see :class:`Interest`) whether anyone su
 robot's odometry (scans); when nobody does, the per-robot messages are neither encoded nor put,
 which is most of a tick's sending work when clients follow the fleet topics instead.
 ``get P/<ns>/odom`` and ``get P/<ns>/scan`` are answered from the latest snapshot, encoded on
-request: the same bytes the topic carries.
+request: the same bytes the topic carries. A get on a robot's exact key is also what a client
+starting to follow that robot sends (FleetClient.on_odom, fleet-teleop): its publisher is then
+declared by the next tick, ahead of the others (see ``Publisher._odom_put``).
 Everything but those answers runs on one thread at a time (the adapter's), in the engine's order.
 """
 
@@ -40,6 +42,10 @@ log = logging.getLogger(__name__)
 
 #: Wall time a tick may spend declaring per-robot publishers (see ``Publisher._odom_put``).
 DECLARE_BUDGET_S = 0.02
+#: Publishers of followed robots (asked for by their exact key) a tick declares before the others,
+#: whatever the budget: a handful of followers are served at once, thousands of asks cannot stall
+#: a tick (~15 ms each among 20 000 robots' publishers); the rest wait for the next ticks.
+FOLLOWED_PER_TICK = 16
 
 
 def to_json(topic: str, msgpack_payload: bytes) -> bytes:
@@ -82,6 +88,9 @@ class Publisher:
         self._removed: dict[str, tuple[int, int]] = {}
         self._gone: frozenset[str] = frozenset()  # those of them the tick being sent still names
         self._latest_scan: dict[str, tuple[TickSnapshot, int]] = {}
+        # robots somebody asked for by their exact key (a client starting to follow one), in the
+        # order asked, whose publisher is not declared yet: added on zenoh's threads, taken by ticks
+        self._followed: dict[str, dict[str, None]] = {"odom": {}, "scan": {}}
         k = keys
         self.clock_pub = session.declare_publisher(k.clock, encoding="application/msgpack")
         # The fleet topics (one message a tick for the whole fleet) are built only while their
@@ -163,7 +172,9 @@ class Publisher:
         a daemon behind a router answer ever later, docs/scale-out.md, and nobody may ever
         subscribe to them). Declaring 8 000 at once held the daemon for seconds, so each tick
         declares them for at most ``DECLARE_BUDGET_S``; the robots still without one are not put
-        until then (their latest odometry is still answered on request). Never put on a key string
+        until then (their latest odometry is still answered on request). The spawn order alone made
+        a follower of the 20 000th robot wait minutes: robots asked for by their exact key are
+        declared first (:meth:`_declare_followed`). Never put on a key string
         instead: zenoh matches such a key against every resource it knows at every put, and with
         8 000 robots' tokens and a driver's 8 000 publishers that made a tick take seconds
         (bench.overload)."""
@@ -199,6 +210,8 @@ class Publisher:
             self._removed[ns] = at
             self._first_odom.pop(ns, None)
             self._latest_scan.pop(ns, None)
+            for asked in self._followed.values():
+                asked.pop(ns, None)
         tok = self._tokens.pop(ns, None)
         if tok is not None:
             tok.undeclare()
@@ -237,6 +250,8 @@ class Publisher:
             for i, ns in enumerate(snap.scan_namespaces):
                 if ns not in gone:  # a deleted robot's scan, kept, would keep the whole snapshot for ever
                     latest_scan[ns] = (snap, i)
+        if self._followed["odom"] or self._followed["scan"]:
+            self._declare_followed()
         if self.odom_wanted or self.odom_json_wanted:
             odom = self._odom.encode(
                 snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
@@ -254,6 +269,33 @@ class Publisher:
             if self.scan_json_wanted:
                 self._mirror("scan", snap.scan_namespaces, scans)
         self._publish_fleet_topics(snap)
+
+    def _declare_followed(self, most: int = FOLLOWED_PER_TICK) -> None:
+        """Declare the publishers of the robots somebody asked for by their exact key (in the
+        order asked, ``most`` of them), before this tick's round robin and outside its budget,
+        while somebody subscribes to that topic; the others stay asked for the next ticks."""
+        wanted = {
+            "odom": bool(self.odom_wanted or self.odom_json_wanted),
+            "scan": bool(self.scan_wanted or self.scan_json_wanted),
+        }
+        taken: list[tuple[str, str]] = []
+        with self._latest_lock:
+            for topic, asked in self._followed.items():
+                while wanted[topic] and asked and len(taken) < most:
+                    ns = next(iter(asked))
+                    del asked[ns]
+                    taken.append((topic, ns))
+        for topic, ns in taken:
+            table = self._odom_pub if topic == "odom" else self._scan_pub
+            if ns in table or ns not in self._tokens or ns in self._gone:  # declared meanwhile, or deleted
+                continue
+            if topic == "odom":
+                table[ns] = self.session.declare_publisher(self.keys.odom(ns), encoding="application/msgpack")
+                self._odom_puts = ([], [])  # the tick's puts are looked up again, with this one
+            else:
+                table[ns] = self.session.declare_publisher(
+                    self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+                )
 
     def _put_odom(self, namespaces: list[str], odom: list[bytes]) -> None:
         layout, puts = self._odom_puts
@@ -337,6 +379,16 @@ class Publisher:
         with query:
             json_wanted = query.parameters.get("format") == "json"
             lookup = self.latest_odom if topic == "odom" else self.latest_scan
+            asked = str(query.key_expr)
+            ns = self.keys.namespace_of(asked)
+            if ns is not None and "*" not in ns and "$" not in ns:  # one robot's exact key: a follower
+                if ns in self._tokens:  # one of this daemon's robots
+                    self._follow(topic, ns)
+                data = lookup(ns)
+                if data is not None:
+                    body = to_json(topic, data) if json_wanted else data
+                    query.reply(asked, body, encoding=media_type("json" if json_wanted else "msgpack"))
+                return
             for ns in self._robots_now():
                 key = f"{self.keys.prefix}/{ns}/{topic}"
                 if not query.key_expr.intersects(zenoh.KeyExpr(key)):
@@ -345,6 +397,17 @@ class Publisher:
                 if data is not None:
                     body = to_json(topic, data) if json_wanted else data
                     query.reply(key, body, encoding=media_type("json" if json_wanted else "msgpack"))
+
+    def _follow(self, topic: str, ns: str) -> None:
+        """Remember that somebody asked for the robot's latest message by its exact key, as a
+        client does when it starts following that robot: the next tick declares its publisher
+        first (:meth:`_declare_followed`). On zenoh's threads."""
+        table = self._odom_pub if topic == "odom" else self._scan_pub
+        if ns in table:  # declared already (the usual case): nothing to do
+            return
+        with self._latest_lock:
+            if ns not in self._removed:
+                self._followed[topic][ns] = None
 
     def _answer_odom(self, query: zenoh.Query) -> None:
         self._answer(query, "odom")

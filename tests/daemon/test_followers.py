@@ -1,0 +1,127 @@
+"""A robot somebody follows gets its publishers first (issue 33).
+
+The daemon declares the robots' own publishers lazily, in spawn order, for at most
+``DECLARE_BUDGET_S`` a tick: in a big fleet the last robots wait many ticks for theirs (at
+20 000 robots, minutes). A client that starts following one robot asks for its latest message
+by its exact key (``get P/<ns>/odom``); the next tick declares that robot's publisher first.
+The fleets here are big enough that declaring every publisher takes several ticks on the
+project's 2-core machine (2 000 robots: ten lockstep steps before a follower of the last one
+heard from it without this); the daemons run in lockstep, so no tick passes unasked.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+import msgspec
+import zenoh
+
+from clients import FleetClient, wait_until
+from protocol import DeleteRequest, Keys, LaserScan, Odometry, SpawnRequest
+from simd.adapters.fleet.publisher import FOLLOWED_PER_TICK
+from tests.conftest import Daemon
+from tests.daemon.test_fleet_topics import in_process_daemon
+from tests.zraw import client_config, get
+
+BIG_FLEET = 2000
+
+
+def big_lockstep_fleet(daemon_factory: Callable[..., Daemon], n: int = BIG_FLEET) -> tuple[Daemon, FleetClient]:
+    """A lockstep daemon with ``n`` robots r0 .. r<n-1> spawned in that order, a grid 0.5 m apart."""
+    d = daemon_factory("--lockstep", "--world", "empty", "--no-noise", "--no-nav", "--max-robots", str(n))
+    c = d.client(timeout=30.0)
+    side = int(n**0.5) + 1
+    c.spawn_many(
+        SpawnRequest(name=f"r{i}", x=(i % side) * 0.5 - side / 4, y=(i // side) * 0.5 - side / 4) for i in range(n)
+    )
+    return d, c
+
+
+def tick_of(msg: Odometry | LaserScan) -> int:
+    return round(msg.header.stamp.to_seconds() * 30)
+
+
+def test_a_follower_of_the_last_spawned_robot_hears_from_it_at_the_next_tick(
+    daemon_factory: Callable[..., Daemon],
+) -> None:
+    d, stepper = big_lockstep_fleet(daemon_factory)
+    last = f"r{BIG_FLEET - 1}"
+    follower = d.client()
+    odom: list[Odometry] = []
+    scans: list[LaserScan] = []
+    lock = threading.Lock()
+
+    def keep(into: list[Odometry] | list[LaserScan]) -> Callable[[str, Odometry | LaserScan], None]:
+        def on(ns: str, msg: Odometry | LaserScan) -> None:
+            with lock:
+                into.append(msg)  # type: ignore[arg-type]
+
+        return on
+
+    follower.on_odom(last, keep(odom))
+    follower.on_scan(last, keep(scans))
+    start = stepper.clock().tick
+    stepper.step(1)  # the reply comes after the tick's messages were put
+    assert wait_until(lambda: bool(odom), 5.0), "no odometry from the last robot after one tick"
+    assert tick_of(odom[0]) == start + 1
+    stepper.step(5)  # the robot's group scans once in six ticks
+    assert wait_until(lambda: bool(scans), 5.0), "no scan from the last robot within one 5 Hz period"
+    assert start < tick_of(scans[0]) <= start + 6
+    assert wait_until(lambda: len(odom) == 6, 5.0)
+    assert [tick_of(m) for m in odom] == list(range(start + 1, start + 7))  # none missed, none twice
+
+
+# -- the bookkeeping, in-process on a real zenoh session -----------------------------------------
+
+
+def test_only_a_get_on_one_robots_exact_key_marks_it_followed_and_a_deleted_robot_is_dropped() -> None:
+    names = [f"r{i}" for i in range(4)]
+    with (
+        in_process_daemon(names, lockstep=True) as (engine, adapter, endpoint),
+        zenoh.open(client_config(endpoint)) as user,
+    ):
+        pub = adapter.publisher
+        keys = Keys()
+        for key in ("fleet/*/odom", "fleet/**", "fleet/r$*/scan", "fleet/nobody/odom"):
+            get(user, key)
+        assert pub._followed == {"odom": {}, "scan": {}}  # looking at many (or none) is not following
+        ok, _ = get(user, keys.odom("r2"))
+        assert ok is not None and msgspec.msgpack.decode(ok, type=Odometry).header.frame_id == "r2/odom"
+        get(user, keys.scan("r1") + "?format=json")
+        get(user, keys.odom("r3"))
+        assert pub._followed == {"odom": {"r2": None, "r3": None}, "scan": {"r1": None}}
+        engine.submit(DeleteRequest(name="r3"), lambda r: None)
+        engine.serve_pending()
+        engine.tick()
+        assert adapter.outbox.flush()
+        # r3 deleted: forgotten; r2 kept, nobody subscribes yet
+        assert "r2" not in pub._odom_pub and pub._followed["odom"] == {"r2": None}
+        user.declare_subscriber(keys.odom("r0"), lambda s: None)
+        user.declare_subscriber(keys.scan("r0"), lambda s: None)
+        assert wait_until(lambda: bool(pub.odom_wanted) and bool(pub.scan_wanted), 3.0)
+        engine.tick()
+        assert adapter.outbox.flush()
+        assert "r2" in pub._odom_pub and "r1" in pub._scan_pub and "r3" not in pub._odom_pub
+        assert pub._followed == {"odom": {}, "scan": {}}
+        get(user, keys.odom("r2"))  # declared already: nothing to remember
+        assert pub._followed == {"odom": {}, "scan": {}}
+
+
+def test_a_tick_declares_at_most_so_many_followed_robots_the_rest_wait_their_turn() -> None:
+    names = [f"r{i}" for i in range(FOLLOWED_PER_TICK + 5)]
+    with (
+        in_process_daemon(names, lockstep=True) as (_, adapter, endpoint),
+        zenoh.open(client_config(endpoint)) as user,
+    ):
+        pub = adapter.publisher
+        for ns in names:
+            get(user, Keys().odom(ns))
+        assert list(pub._followed["odom"]) == names
+        pub._declare_followed()  # (nobody subscribes: nothing is taken)
+        assert len(pub._followed["odom"]) == len(names)
+        user.declare_subscriber("fleet/r0/odom", lambda s: None)
+        assert wait_until(lambda: bool(pub.odom_wanted), 3.0)
+        pub._declare_followed()
+        assert list(pub._followed["odom"]) == names[FOLLOWED_PER_TICK:]  # the first asked, first
+        assert set(pub._odom_pub) == set(names[:FOLLOWED_PER_TICK])
