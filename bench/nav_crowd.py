@@ -13,8 +13,11 @@ network in between, so that many seeds cost little, and pools their goals: each 
 has a random reachable goal over 1 m away (a new one as soon as one ends, tolerance 0.1 m),
 and each goal reached gives its time over the lower bound, the straight line less the
 tolerance at the model's top speed (as nav_bench's). Printed: goals reached and failed, the
-pooled p50 / p75 / p95 of that ratio, and the closest two robots' centres came. Every number
-of a seed is the same on every run (lockstep, seeded goals).
+pooled p50 / p75 / p95 of that ratio, and the closest two robots' centres came; where the time
+goes (seconds per goal in each state) and whom waiting robots wait for; and the time lost
+against the bound by what the robot did (each step's time less its progress towards the goal
+at top speed: a crowd's excess over a lone robot's, by cause). Every number of a seed is the
+same on every run (lockstep, seeded goals).
 """
 
 from __future__ import annotations
@@ -60,6 +63,9 @@ class SeedRun:
     parts: list[dict[str, float]]
     #: seconds robots were ``waiting``, by what they did and whom they waited for (``_waits``)
     waits: dict[str, float] = field(default_factory=dict)
+    #: seconds lost against the bound (a step's time less its progress towards the goal at top
+    #: speed), by what the robot did, summed over every goal's steps (reached or not)
+    lost: dict[str, float] = field(default_factory=dict)
 
 
 def _doing(state: str, command: tuple[float, float]) -> str:
@@ -141,18 +147,29 @@ def run_seed(world_name: str, robots: int, seconds: float, seed: int) -> SeedRun
     slots = {nav.robots[name].slot: nav.robots[name] for name in names}
     spent: dict[str, dict[str, float]] = {name: {} for name in names}
     dt = sim.config.dt
+    def left(name: str) -> float:
+        row, goal = sim.robots.row_of(name), nav.robots[name].goal
+        assert goal is not None
+        return math.hypot(goal.x - float(sim.robots.x[row]), goal.y - float(sim.robots.y[row]))
+
     for k in range(int(seconds / dt)):
         nav.step(sim.robots, sim.tick, sim.time)
         nav.apply(sim.robots, sim.command_rows)
+        doing_now = {name: _doing(nav.robots[name].state, nav.robots[name].command) for name in names
+                     if nav.robots[name].active}  # fmt: skip
+        why_now = {name: _waits(nav, nav.robots[name], slots) for name, d in doing_now.items() if d == "waiting"}
+        before = {name: left(name) for name in doing_now}
         nav.observe(sim.step())
-        for name in names:
-            robot = nav.robots[name]
-            if robot.active:
-                doing = _doing(robot.state, robot.command)
-                spent[name][doing] = spent[name].get(doing, 0.0) + dt
-                if doing == "waiting":
-                    why = _waits(nav, robot, slots)
-                    out.waits[why] = out.waits.get(why, 0.0) + dt
+        for name, doing in doing_now.items():
+            spent[name][doing] = spent[name].get(doing, 0.0) + dt
+            what = f"waiting: {why_now[name]}" if doing == "waiting" else doing
+            if doing == "moving":  # a longer way than the straight line, or a slower one
+                near_top = abs(nav.robots[name].command[0]) >= 0.95 * burger.max_linear_velocity
+                what = "moving at top speed" if near_top else "moving slower"
+            lost = dt - (before[name] - left(name)) / burger.max_linear_velocity
+            out.lost[what] = out.lost.get(what, 0.0) + lost
+            if doing == "waiting":
+                out.waits[why_now[name]] = out.waits.get(why_now[name], 0.0) + dt
         for r in nav.take_events().results:
             if r.status == "reached":
                 out.ratios.append(r.navigation_time / bound[r.robot])
@@ -213,6 +230,15 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"  waiting ({total:.0f} s in all): "
             + ", ".join(f"{k} {100 * v / total:.0f} %" for k, v in sorted(waits.items(), key=lambda kv: -kv[1]))
+        )
+    lost: dict[str, float] = {}
+    for run in runs:
+        for k, v in run.lost.items():
+            lost[k] = lost.get(k, 0.0) + v
+    if lost:
+        print(
+            f"  time lost against the bound, s per reached goal ({sum(lost.values()) / len(ratios):.2f} in all): "
+            + ", ".join(f"{k} {v / len(ratios):.2f}" for k, v in sorted(lost.items(), key=lambda kv: -kv[1]))
         )
     if args.out:
         with open(args.out, "w") as f:

@@ -35,6 +35,16 @@ def test_a_small_crowd_reaches_goals_and_a_seed_repeats(tmp_path: Path, capsys: 
         waited = sum(parts.get("waiting", 0.0) for parts in r["parts"])  # (reached goals' part of it)
         assert sum(r["waits"].values()) >= waited - 1e-6
     assert "waiting (" in printed
+    for r in runs:  # the time lost against the bound, by what the robot did (waiting: whom for)
+        causes = {"planning", "moving at top speed", "moving slower", "turning", "standing", "yielding", "blocked"}
+        assert set(r["lost"]) <= causes | {f"waiting: {why}" for why in r["waits"]}
+        # summed: what each goal reached took over its bound (less up to its tolerance at top
+        # speed, 0.1 m / 0.22 m/s: reached short of the point), and for the three goals under
+        # way at the end, at most their time so far and at least that less their length (5 m)
+        over = sum((ratio - 1.0) * parts["bound"] for ratio, parts in zip(r["ratios"], r["parts"], strict=True))
+        reached = len(r["ratios"])
+        assert over - reached * 0.1 / 0.22 - 3 * 5.0 / 0.22 - 0.5 <= sum(r["lost"].values()) <= over + 3 * 60.0
+    assert "time lost against the bound" in printed
     again = nav_crowd.run_seed("turtlebot3_world", 3, 60.0, 1)
     assert again.ratios == runs[0]["ratios"]  # lockstep, seeded: the same goals in the same times
 
