@@ -54,7 +54,7 @@ def stepped_until_ended(c: FleetClient, robot: str, goal_id: str, seconds: float
 @pytest.fixture
 def lockstep(daemon_factory: Callable[..., Daemon]) -> tuple[Daemon, FleetClient]:
     d = daemon_factory("--lockstep")
-    c = d.client()
+    c = d.client(timeout=10.0)  # (lockstep: nothing here waits on the clock; a shared machine stalls for seconds)
     c.spawn("tb3_0", *SPAWN)
     return d, c
 
