@@ -168,8 +168,8 @@ class RobotListEncoder:
         ``records`` is laid out again whenever it is another list than the last one: the caller
         makes a new list when the fleet changes, and keeps the records of the robots that stay.
         With ``rows``, the list holds those rows only, in that order (a page of a big fleet:
-        its records' bytes picked from the fleet's layout, ~1 ms for 1 000 of 20 000 robots,
-        where building and encoding the structs took ~5)."""
+        its records' bytes picked from the fleet's layout, ~1 ms for 1 000 of 20 000
+        robots, where building and encoding their structs took ~5)."""
         n = len(records)
         columns = (x, y, yaw, linear, angular)
         if any(len(c) != n for c in columns):

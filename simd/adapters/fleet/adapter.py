@@ -187,7 +187,8 @@ class FleetAdapter:
         """The MessagePack answer to a list request (checked: listing.check) on the query's
         thread. The whole list and a page are written from byte templates of the robots'
         records (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60; a page of
-        1 000 among 20 000 in ~1 ms instead of ~5), a few robots from their records."""
+        1 000 among 20 000 just after a change in ~2.5 ms of CPU instead of ~8, most of it now
+        ordering the names), a few robots from their records."""
         r = self.engine.roster_now()
         rows = None if listing.whole(request) else self._name_index(r).rows(request)
         if rows is None or len(rows) > FEW_ROWS:
