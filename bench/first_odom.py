@@ -23,7 +23,7 @@ from pathlib import Path
 from bench.arena import make_arena, write_world
 from bench.processes import DaemonProc, start_daemon
 from bench.wire import PREFIX
-from clients import FleetClient
+from clients import FleetClient, wait_until
 from protocol import Odometry, SpawnRequest
 
 
@@ -35,15 +35,8 @@ def run(n: int, settle: float, timeout: float, tmp: Path) -> dict[str, object]:
         daemon: DaemonProc = start_daemon(world, 1.0, n + 1, tmp, ["--paused", "--cmd-timeout", "0", "--no-nav"])
         stack.callback(daemon.stop)
         fleet = stack.enter_context(FleetClient(daemon.endpoint, prefix=PREFIX, timeout=120.0))
-        deadline = time.monotonic() + 60.0
-        while True:
-            try:
-                fleet.clock()
-                break
-            except Exception:
-                if time.monotonic() > deadline:
-                    raise
-                time.sleep(0.2)
+        if not wait_until(lambda: bool(fleet.daemons()), 60.0):
+            raise RuntimeError(f"simd did not answer within 60 s:\n{daemon.log_tail()}")
         t = time.monotonic()
         fleet.spawn_many(SpawnRequest(name=f"r{i}", x=x, y=y, yaw=yaw) for i, (x, y, yaw) in enumerate(arena.poses))
         spawn_s = time.monotonic() - t
