@@ -79,6 +79,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--settle", type=float, default=5.0, help="seconds running before following (default 5)")
     p.add_argument("--timeout", type=float, default=1800.0, help="give up after this many seconds (default 1800)")
     args = p.parse_args(argv)
+    if args.robots < 1 or args.settle < 0 or not args.timeout > 0:
+        p.error("--robots must be at least 1, --settle 0 or more and --timeout positive")
     with tempfile.TemporaryDirectory(prefix="first-odom-") as tmp:
         print(json.dumps(run(args.robots, args.settle, args.timeout, Path(tmp))), flush=True)
     return 0
