@@ -149,9 +149,7 @@ class Publisher:
         if put and (self.odom_wanted or self.odom_json_wanted):
             pub = self._odom_pub.get(ns)
             if pub is None:  # declared now, whatever the tick's budget: the spawn's reply follows this
-                pub = self._odom_pub[ns] = self.session.declare_publisher(
-                    self.keys.odom(ns), encoding="application/msgpack"
-                )
+                pub = self._declare("odom", ns)
             pub.put(first)
             self.odom_puts += 1
             if self.odom_json_wanted:
@@ -184,22 +182,15 @@ class Publisher:
         if not self._may_declare():
             self._odom_undeclared = True
             return _skip
-        pub = self._odom_pub[ns] = self.session.declare_publisher(self.keys.odom(ns), encoding="application/msgpack")
-        return pub.put
+        return self._declare("odom", ns).put
 
     def _scan_put(self, ns: str) -> Callable[[bytes], object]:
-        # Scans travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a
-        # tick's scans and its odometry each get a full queue, and odometry goes first when a
-        # link is congested (it is what closes a control loop).
         pub = self._scan_pub.get(ns)
         if pub is not None:
             return pub.put
         if not self._may_declare():
             return _skip
-        pub = self._scan_pub[ns] = self.session.declare_publisher(
-            self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
-        )
-        return pub.put
+        return self._declare("scan", ns).put
 
     def remove_robot(self, ns: str, at: tuple[int, int], publishers: bool = True) -> None:
         """Undeclare a deleted robot's token and publishers now (any thread: its delete is
@@ -287,15 +278,24 @@ class Publisher:
                     taken.append((topic, ns))
         for topic, ns in taken:
             table = self._odom_pub if topic == "odom" else self._scan_pub
-            if ns in table or ns not in self._tokens or ns in self._gone:  # declared meanwhile, or deleted
-                continue
-            if topic == "odom":
-                table[ns] = self.session.declare_publisher(self.keys.odom(ns), encoding="application/msgpack")
-                self._odom_puts = ([], [])  # the tick's puts are looked up again, with this one
-            else:
-                table[ns] = self.session.declare_publisher(
-                    self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
-                )
+            if ns not in table and ns in self._tokens and ns not in self._gone:  # (else declared meanwhile, or deleted)
+                self._declare(topic, ns)
+
+    def _declare(self, topic: str, ns: str) -> zenoh.Publisher:
+        """Declare the robot's publisher of ``topic`` (``odom`` or ``scan``) and keep it. Scans
+        travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a tick's scans
+        and its odometry each get a full queue, and odometry goes first when a link is
+        congested (it is what closes a control loop)."""
+        if topic == "odom":
+            pub = self._odom_pub[ns] = self.session.declare_publisher(
+                self.keys.odom(ns), encoding="application/msgpack"
+            )
+            self._odom_puts = ([], [])  # the tick's puts are looked up again, with this one
+            return pub
+        pub = self._scan_pub[ns] = self.session.declare_publisher(
+            self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
+        )
+        return pub
 
     def _put_odom(self, namespaces: list[str], odom: list[bytes]) -> None:
         layout, puts = self._odom_puts
