@@ -64,7 +64,7 @@ class Floor:
         of an open world, they cut straight across the cells they hold where that is clear."""
         self.costmap = costmap
         self.graph = CellGraph(world, cell, align=costmap is not None, one_way=costmap is None)
-        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD)
+        self.traffic = Traffic(self.graph, ahead=AHEAD if costmap is None else OPEN_AHEAD, forecast=costmap is not None)
 
     def describe(self) -> str:
         how = "in lanes" if self.costmap is None else "driven straight across"
@@ -185,7 +185,7 @@ class Floor:
         first; a robot that stands in its goal's cell but cannot reach the goal point for the
         robots around it goes last (as PIBT resets an agent's priority at its goal)."""
         traffic = self.traffic
-        traffic.begin_round()
+        traffic.begin_round(now)
         size = self.graph.size
         deciding = []
         for robot in driven:
@@ -292,19 +292,10 @@ class Floor:
         assert self.costmap is not None and m.dist is not None
         g = self.graph
         need = body_radius(model)
-        dist = m.dist
-        moves = g.moves(model)
-        c = way[-1]
-        ahead = [g.centre(c)]
-        for _ in range(AIM_CELLS):
-            if c == m.goal_cell:
-                ahead.append(m.goal_xy)
-                break
-            nxt = min((g.neighbour(c, k) for k in range(8) if moves[c, k]), key=lambda n: float(dist[n]), default=FREE)
-            if nxt == FREE or float(dist[nxt]) >= float(dist[c]):
-                break
-            c = nxt
-            ahead.append(g.centre(c))
+        cells = self.traffic.descent(m, way[-1], AIM_CELLS)
+        ahead = [g.centre(c) for c in [way[-1], *cells]]
+        if (cells[-1] if cells else way[-1]) == m.goal_cell and len(cells) < AIM_CELLS:
+            ahead.append(m.goal_xy)
         x, y = here
         for tx, ty in reversed(ahead):
             if math.hypot(tx - x, ty - y) < 1e-6:

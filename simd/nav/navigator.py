@@ -92,6 +92,11 @@ STALL_PATIENCES = 2.0
 #: a robot the guard stops turns on the spot until it faces its way's first point within this
 #: (rad), then drives to that point (the corner it would have cut) until this near (m)
 FACING_RAD, CORNER_REACHED_M = 0.05, 0.03
+#: on an open floor a robot drives its way backwards when the way starts further than this
+#: (rad) off the end it drives with, and the other end is nearer: turning round costs a
+#: burger about a second; a TurtleBot3's drive and 360-degree lidar work both ways (the
+#: margin over a right angle keeps it from switching ends on a way that starts square to it)
+SWITCH_ENDS_ABOVE_RAD = math.pi / 2 + 0.3
 #: a robot whose way runs this far (m) from the path it told has it told again, at most this often (s)
 OFF_PATH_M, RETELL_S = 0.3, 1.0
 
@@ -454,7 +459,9 @@ class Navigator:
     def _drive_robots(self, driven: list[NavRobot], table: RobotTable, now: float) -> None:
         floor = self.floor
         rows = np.array([self._row[r.namespace] for r in driven], dtype=np.int64)
-        x, y, yaw = table.x[rows], table.y[rows], table.yaw[rows]
+        x, y, real_yaw = table.x[rows], table.y[rows], table.yaw[rows]
+        back_of = np.array([r.reversed for r in driven])
+        yaw = wrap(real_yaw + np.pi * back_of)
         ways = [floor.way(r, float(x[k]), float(y[k]), float(yaw[k])) for k, r in enumerate(driven)]
         width = max(len(w) for w in ways)
         px = np.array([[p[0] for p in w] + [w[-1][0]] * (width - len(w)) for w in ways])
@@ -470,6 +477,9 @@ class Navigator:
                 robot.corner = None
             else:
                 aim_x[k], aim_y[k], room[k] = corner[0], corner[1], min(float(room[k]), left)
+        if floor.costmap is not None:
+            self._choose_ends(driven, x, y, yaw, aim_x, aim_y)
+            back_of = np.array([r.reversed for r in driven])
         lidar = np.array([
             LOOK_AHEAD_M if abs(math.remainder(float(yaw[k]) - r.lidar_yaw, 2 * math.pi)) > 0.3 else r.lidar_room
             for k, r in enumerate(driven)
@@ -480,15 +490,17 @@ class Navigator:
         room = np.minimum(room, lidar_room)
         back = BACK_WITHIN_M if floor.costmap is not None else 0.0  # (in lanes robots turn)
         v, w = pursue(x, y, yaw, aim_x, aim_y, room, limits, back)
+        v = np.where(back_of, -v, v)
         v_now = np.abs(table.vx[rows])
-        crowd = would_crowd(self.floor, driven, x, y, yaw, v, v_now)
+        crowd = would_crowd(self.floor, driven, x, y, real_yaw, v, v_now)
         if crowd.any():  # cutting across would touch another's cells: by the way's first point
             ks = np.flatnonzero(crowd)
             first = np.array([_first_step(ways[j]) for j in ks.tolist()])
             sub = Limits(limits.max_v[ks], limits.max_w[ks])
             dist = np.minimum(room[ks], np.hypot(first[:, 0] - x[ks], first[:, 1] - y[ks]))
             v[ks], w[ks] = pursue(x[ks], y[ks], yaw[ks], first[:, 0], first[:, 1], dist, sub, back)
-            still = would_crowd(self.floor, driven, x, y, yaw, v, v_now)
+            v[ks] = np.where(back_of[ks], -v[ks], v[ks])
+            still = would_crowd(self.floor, driven, x, y, real_yaw, v, v_now)
             if still.any():  # even that arc would: stop, and turn on the spot to face the first point
                 js = np.flatnonzero(still)
                 pts = np.array([_first_step(ways[j]) for j in js.tolist()])
@@ -498,7 +510,7 @@ class Navigator:
                 v[js] = 0.0
                 for j, (cx, cy) in zip(js.tolist(), pts.tolist(), strict=True):
                     driven[j].corner = (cx, cy)  # and aims there, not round it, until it is there
-        v = np.where(too_close(driven, rows, table, x, y, yaw, v), 0.0, v)
+        v = np.where(too_close(driven, rows, table, x, y, real_yaw, v), 0.0, v)
         for k, robot in enumerate(driven):
             robot.command = (float(v[k]), float(w[k]))
             self._retell_if_off(robot, ways[k], now)
@@ -516,6 +528,20 @@ class Navigator:
                 robot.state = "waiting"
             else:
                 robot.state = "driving"
+
+    @staticmethod
+    def _choose_ends(driven: list[NavRobot], x: F64, y: F64, yaw: F64, aim_x: F64, aim_y: F64) -> None:
+        """Each robot whose aim lies more than SWITCH_ENDS_ABOVE_RAD off the end it drives
+        with drives with the other end from now on (``yaw``: the heading of the end each
+        drives with, turned round for those that switch). Not while it heads for a corner
+        the guard sent it to."""
+        dx, dy = aim_x - x, aim_y - y
+        off = np.abs(wrap(np.arctan2(dy, dx) - yaw))
+        switch = (off > SWITCH_ENDS_ABOVE_RAD) & (np.hypot(dx, dy) > 0.05)
+        for k in np.flatnonzero(switch).tolist():
+            if driven[k].corner is None:
+                driven[k].reversed = not driven[k].reversed
+                yaw[k] = math.remainder(float(yaw[k]) + math.pi, 2 * math.pi)
 
     def _mark_seen(self, robot: NavRobot, now: float) -> None:
         """What the lidar keeps seeing in the way goes on this robot's map; then a new plan."""
@@ -544,7 +570,10 @@ class Navigator:
             idx = snap.scan_index[wanted]
             offsets = np.array([r.model.lidar_offset for r in robots], dtype=np.float64)
             half = np.array([float(np.max(np.abs(r.model.outline[:, 1]))) for r in robots])
-            front = np.array([float(np.max(r.model.outline[:, 0])) for r in robots])
+            back = np.array([r.reversed for r in robots])
+            # the edge of the end it drives with, in the frame of that end
+            front = np.array([float(np.max(-r.model.outline[:, 0] if r.reversed else r.model.outline[:, 0]))
+                              for r in robots])  # fmt: skip
             sx, sy, syaw = snap.x[idx], snap.y[idx], snap.yaw[idx]
             px, py = self._guard.points(scans, offsets)
             c, s = np.cos(syaw)[:, None], np.sin(syaw)[:, None]
@@ -553,10 +582,11 @@ class Navigator:
             owner = floor.owner_at(wx, wy)
             # what the map or the fleet explains is not the lidar's business
             known = ((owner != FREE) & (owner != mine)) | self._on_map(wx, wy)
-            rooms, seen = self._guard.room_ahead(px, py, half, front, known)
+            ends = np.where(back, -1.0, 1.0)[:, None]  # (a robot driving backwards looks behind it)
+            rooms, seen = self._guard.room_ahead(px * ends, py * ends, half, front, known)
             for k, robot in enumerate(robots):
                 robot.lidar_room = float(rooms[k])
-                robot.lidar_yaw = float(syaw[k])
+                robot.lidar_yaw = float(syaw[k]) + (math.pi if robot.reversed else 0.0)
                 robot.lidar_hits = np.stack([wx[k][seen[k]], wy[k][seen[k]]], axis=1)
 
     def _navigating(self, namespace: str) -> bool:

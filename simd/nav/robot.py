@@ -55,6 +55,8 @@ class NavRobot:
     nearer_at: float = 0.0
     #: the corner of its way it goes to first (cutting it would reach into another's cells)
     corner: tuple[float, float] | None = None
+    #: it drives with its back first (its way started behind it: navigator.SWITCH_ENDS_ABOVE_RAD)
+    reversed: bool = False
 
     @property
     def active(self) -> bool:

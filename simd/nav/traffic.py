@@ -19,6 +19,13 @@ else's cmd_vel) is never pushed: it is an obstacle the others go around.
 A cell being left by one robot may be promised to the next (``pending``), so a queue of
 robots moves up without gaps; the promised robot takes the cell when the other's circle has
 left it.
+
+On an open floor a robot also looks a few seconds ahead (``forecast``): every robot with a
+goal is forecast down its way at top speed, and a robot deciding its next cell takes another
+than its way's best when the older goals' robots expected across the best one would hold it
+up longer (prioritized planning in space and time, as in cooperative A*, but over a few cells
+and re-decided every step, so a late robot only costs time, never safety: the cells still
+decide who drives where).
 """
 
 from __future__ import annotations
@@ -43,6 +50,11 @@ AHEAD = 2
 MAX_PUSH_DEPTH = 8
 #: a robot that stepped aside keeps out of the cell it left this long (s of sim time)
 GIVE_WAY_S = 5.0
+#: the forecast (open floors): each robot's next cells this far along its way
+FORECAST_CELLS = 6
+#: a robot takes another next cell than its way's best only when the forecast expects it
+#: there this much sooner (s): smaller margins swap choices on noise and jam more
+FORECAST_MARGIN_S = 0.5
 
 
 @dataclass(eq=False)
@@ -85,9 +97,14 @@ class Mover:
 class Traffic:
     """The cells of one world and the robots on them (see the module docstring)."""
 
-    def __init__(self, graph: CellGraph, ahead: int = AHEAD) -> None:
+    def __init__(self, graph: CellGraph, ahead: int = AHEAD, forecast: bool = False) -> None:
         self.graph = graph
         self.ahead = ahead  # cells a robot commits to ahead of its own
+        self.forecasting = forecast
+        #: cell -> (from, until, slot, priority): when each robot's body is expected over it
+        #: (rebuilt every control step when ``forecasting``)
+        self.forecast: dict[int, list[tuple[float, float, int, tuple[float, int]]]] = {}
+        self.now = 0.0
         self.owner = np.full(graph.count, FREE, dtype=np.int64)
         self.pending = np.full(graph.count, FREE, dtype=np.int64)
         self.movers: dict[int, Mover] = {}
@@ -120,13 +137,25 @@ class Traffic:
     # -- where robots stand ---------------------------------------------------------------------
 
     def box(self, x: float, y: float, r: float) -> tuple[int, ...]:
-        """The cells (flat) that the square of half-side ``r`` about (x, y) overlaps."""
+        """The cells (flat) that the circle of radius ``r`` about (x, y) overlaps (its bounding
+        square's cells less the corners it misses: a robot crossing a cell's corner diagonally
+        holds three cells, not four)."""
         g = self.graph.grid
         c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
         c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
         r0 = max(0, math.floor((y - r - g.y0) / g.resolution))
         r1 = min(g.height - 1, math.floor((y + r - g.y0) / g.resolution))
-        return tuple(row * g.width + col for row in range(r0, r1 + 1) for col in range(c0, c1 + 1))
+        res, x0, y0 = g.resolution, g.x0, g.y0
+        out = []
+        for row in range(r0, r1 + 1):
+            ylo = y0 + row * res
+            dy = max(ylo - y, 0.0, y - ylo - res)
+            for col in range(c0, c1 + 1):
+                xlo = x0 + col * res
+                dx = max(xlo - x, 0.0, x - xlo - res)
+                if dx * dx + dy * dy <= r * r:
+                    out.append(row * g.width + col)
+        return tuple(out)
 
     def stand(self, m: Mover, x: float, y: float) -> None:
         """The robot is at (x, y): it holds the cells under it (those free), reaches the next
@@ -195,10 +224,13 @@ class Traffic:
 
     # -- deciding --------------------------------------------------------------------------------
 
-    def begin_round(self) -> None:
+    def begin_round(self, now: float = 0.0) -> None:
         """A control step starts: promises that cannot be kept are dropped, so their robots
         decide again (the robot being followed out of a cell stopped in it instead)."""
         self.decided.clear()
+        self.now = now
+        if self.forecasting:
+            self._forecast(now)
         for m in self.movers.values():
             for k, cells in enumerate(m.needs):
                 if self._promise_broken(m, cells):
@@ -229,6 +261,73 @@ class Traffic:
             if holder.cell == c or any(c in n for n in holder.needs) or self._follows(holder, m.slot):
                 return True
         return False
+
+    def descent(self, m: Mover, c: int, cells: int) -> list[int]:
+        """Up to ``cells`` cells on from ``c`` down the robot's distance field (steepest first),
+        stopping at its goal's cell."""
+        assert m.dist is not None
+        g, dist = self.graph, m.dist
+        moves = g.moves(m.model)
+        out = []
+        for _ in range(cells):
+            if c == m.goal_cell:
+                break
+            steps = (g.neighbour(c, k) for k in range(len(MOVES)) if moves[c, k])
+            nxt = min(steps, key=lambda n: float(dist[n]), default=FREE)
+            if nxt == FREE or float(dist[nxt]) >= float(dist[c]):
+                break
+            out.append(nxt)
+            c = nxt
+        return out
+
+    def _timed(self, m: Mover, cells: list[int], t: float) -> list[tuple[int, float]]:
+        """When the robot's centre is expected at each of ``cells`` (from its position at
+        ``t``), at top speed."""
+        g = self.graph
+        v = m.model.max_linear_velocity
+        x, y = m.xy if m.xy is not None else g.centre(cells[0])
+        out = []
+        for c in cells:
+            cx, cy = g.centre(c)
+            t += math.hypot(cx - x, cy - y) / v
+            out.append((c, t))
+            x, y = cx, cy
+        return out
+
+    def _forecast(self, now: float) -> None:
+        """Where every robot with a goal is expected over the next cells of its way, and
+        when: from where it stands, through the cells it committed to, then down its distance
+        field, at top speed (a robot that waits is expected to go on at once: forecasting it
+        to stay a while longer measured no better in bench.nav_crowd)."""
+        self.forecast = {}
+        size = self.graph.size
+        for m in self.movers.values():
+            if m.dist is None or m.cell == FREE:
+                continue
+            path = [m.cell, *m.route]
+            path += self.descent(m, path[-1], FORECAST_CELLS)
+            half = (size / 2 + m.radius) / m.model.max_linear_velocity
+            for c, t in self._timed(m, path, now):
+                self.forecast.setdefault(c, []).append((t - half, t + half, m.slot, m.priority))
+
+    def _expected(self, m: Mover, n: int, frontier: int) -> float:
+        """When the robot stepping from ``frontier`` into ``n`` is expected at its goal: down
+        its distance field from ``n`` for a few cells at top speed, waiting at each cell an
+        older goal's robot is forecast over at the same time until it has passed, then the
+        way left at top speed."""
+        assert m.dist is not None
+        path = [frontier, n, *self.descent(m, n, FORECAST_CELLS - 1)]
+        v = m.model.max_linear_velocity
+        half = (self.graph.size / 2 + m.radius) / v
+        delay, t_last = 0.0, self.now
+        for c, t in self._timed(m, path, self.now):
+            t += delay
+            for t0, t1, slot, priority in self.forecast.get(c, ()):
+                if slot != m.slot and priority < m.priority and t0 < t + half and t - half < t1:
+                    delay += t1 - (t - half)
+                    t = t1 + half
+            t_last = t
+        return t_last + float(m.dist[path[-1]]) / v
 
     def wants_decision(self, m: Mover, near_end: bool) -> bool:
         """Whether the robot should commit to a further cell now: it has a goal, it is not at
@@ -312,7 +411,15 @@ class Traffic:
         m.waiting_for = FREE
         given = m.gave_way[0] if m.gave_way is not None else FREE
         leave = frozenset((frontier,))
-        for n, k in self._moves_from(m, frontier):
+        moves = self._moves_from(m, frontier)
+        if depth == 0 and self.forecasting and len(moves) > 1:
+            # a robot deciding for itself looks a few seconds ahead: the best next cell by
+            # the way alone may be one that older goals' robots are about to cross
+            expected = [self._expected(m, n, frontier) for n, _ in moves]
+            best = min(range(len(moves)), key=expected.__getitem__)
+            if expected[best] < expected[0] - FORECAST_MARGIN_S:
+                moves.insert(0, moves.pop(best))
+        for n, k in moves:
             if n == m.cell or n in m.route or n == given:
                 continue  # (never back over its own route, nor into a cell it gave way from)
             if float(m.dist[n]) >= here and not (leave & forbid) and depth == 0:

@@ -77,14 +77,15 @@ def test_every_cell_a_step_needs_is_the_robots_or_promised_to_it(seed: int) -> N
 
 
 def test_a_follower_drives_to_its_cells_border_while_the_leader_leaves_the_next() -> None:
-    """``b`` comes up behind ``a``, which first turns round on the spot; the cell ahead of ``b``
+    """``b`` comes up behind ``a``, which first turns a quarter round on the spot (a robot whose
+    way starts behind it would drive off backwards at once); the cell ahead of ``b``
     is promised to it and becomes its own only once ``a``'s body has left it whole. Meanwhile
     ``b`` drives on to the border of its own cell (it used to stand at the centre), its centre
     stays in its own cell, and the two bodies keep apart."""
     world = world_from_dict({"name": "open", "bounds": {"x_min": -3.0, "x_max": 3.0, "y_min": -3.0, "y_max": 3.0}})
     sim = Simulation(world, SimConfig(seed=0))
     nav = Navigator(world, sim.config.lidar, sim.robots, None)
-    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=math.pi))
+    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=math.pi / 2))
     sim.spawn(SpawnRequest(name="b", x=-0.7, y=0.0, yaw=0.0))
     model = MODELS["burger"]
     nav.goal("a", model, NavigateRequest(x=2.5, y=0.0, tolerance=0.1), 0.0)

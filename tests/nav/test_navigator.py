@@ -375,11 +375,11 @@ def test_a_robot_standing_behind_another_says_it_waits_and_for_whom() -> None:
     """Feedback says ``waiting`` (another robot holds the way ahead) whenever a robot stands
     for another, also when it has taken its next step and the other is still leaving the cell
     (it used to say ``driving`` while it stood there). Here ``b`` comes up behind ``a``, which
-    first turns round on the spot."""
+    first turns on the spot (a little over a right angle: further, it would drive off backwards)."""
     world = open_world()
     sim = Simulation(world, SimConfig(seed=0))
     nav = Navigator(world, sim.config.lidar, sim.robots)
-    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=math.pi))
+    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=math.pi / 2 + 0.25))
     sim.spawn(SpawnRequest(name="b", x=-0.7, y=0.0, yaw=0.0))
     model = sim.robots.robots[0].model
     nav.goal("a", model, NavigateRequest(x=2.5, y=0.0, tolerance=0.1), 0.0)
@@ -416,3 +416,67 @@ def test_a_goal_beside_a_robot_is_reached_within_its_tolerance() -> None:
     assert results["a"].navigation_time < 20.0  # no waiting for a patience to end it
     assert closest > TOUCH_M
 
+
+# -- switching ends: a way that starts behind the robot ------------------------------------------
+
+
+def test_a_way_that_starts_behind_the_robot_is_driven_backwards() -> None:
+    """A burger sent 1.5 m straight behind it drives there backwards, never turning round,
+    in less time than turning round alone would add (a burger turns half round in about
+    1.3 s)."""
+    world = open_world()
+    robots: list[Robot] = [("a", (0.0, 0.0, 0.0), (-1.5, 0.0))]
+    sim = Simulation(world, SimConfig(seed=0))
+    nav = Navigator(world, sim.config.lidar, sim.robots)
+    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=0.0))
+    nav.goal("a", MODELS["burger"], NavigateRequest(x=-1.5, y=0.0, tolerance=0.1), 0.0)
+    yaws, speeds, result = [], [], None
+    for _ in range(int(20 / sim.config.dt)):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        yaws.append(float(sim.robots.yaw[0]))
+        speeds.append(float(sim.robots.vx[0]))
+        if results := nav.take_events().results:
+            result = results[0]
+            break
+    assert result is not None and result.status == "reached", result
+    reached_all({"a": result}, robots, sim)
+    assert max(abs(math.remainder(y, 2 * math.pi)) for y in yaws) < 0.3  # it never turned round
+    assert min(speeds) < -0.2 and max(speeds) < 0.01  # backwards at top speed, never forwards
+    bound = (1.5 - 0.1) / MODELS["burger"].max_linear_velocity
+    assert result.navigation_time < bound + 1.0, (result.navigation_time, bound)
+
+
+def test_a_robot_driving_backwards_stops_short_of_what_its_lidar_sees_behind_it() -> None:
+    """A box the navigator's map lacks (put down after the map was made) stands in a way the
+    robot drives backwards: its lidar looks behind it, as it looks ahead of a robot driving
+    forwards, so it brakes short of the box (``blocked``), marks it and goes round it."""
+    bounds = {"x_min": -3, "x_max": 3, "y_min": -3, "y_max": 3}
+    known = world_from_dict({"name": "open", "bounds": bounds})
+    x0, x1, y0, y1 = -1.2, -1.0, -0.6, 0.6
+    box = {"type": "box", "x_min": x0, "x_max": x1, "y_min": y0, "y_max": y1}
+    real = world_from_dict({"name": "open", "bounds": bounds, "obstacles": [box]})
+    sim = Simulation(real, SimConfig(seed=0))
+    nav = Navigator(known, sim.config.lidar, sim.robots)
+    sim.spawn(SpawnRequest(name="a", x=0.0, y=0.0, yaw=0.0))
+    nav.goal("a", MODELS["burger"], NavigateRequest(x=-2.2, y=0.0, tolerance=0.1), 0.0)
+    rear = -float(np.min(MODELS["burger"].outline[:, 0]))  # the chassis' back edge from the centre
+    states, clearance, result = set(), math.inf, None
+    for _ in range(int(60 / sim.config.dt)):
+        nav.step(sim.robots, sim.tick, sim.time)
+        nav.apply(sim.robots, sim.command_rows)
+        nav.observe(sim.step())
+        x, y = where(sim, "a")
+        dx = max(x0 - x, 0.0, x - x1)
+        dy = max(y0 - y, 0.0, y - y1)
+        clearance = min(clearance, math.hypot(dx, dy))
+        states.add(nav.robots["a"].state)
+        if nav.robots["a"].reversed and abs(y) < 0.05:
+            assert x > x1 + rear  # it never backed into the box
+        if results := nav.take_events().results:
+            result = results[0]
+            break
+    assert "blocked" in states, states  # it did see the box
+    assert result is not None and result.status == "reached", result
+    assert clearance > rear - 0.04, clearance  # (going round, its side passes closer than its back)
