@@ -1,5 +1,6 @@
 """What each robot's own lidar says about the way straight ahead: the room before it meets
-something, whatever the map says.
+something, whatever the map says (and behind, for a robot that drives with its back first:
+the navigator asks with the frame turned half round).
 
 The map knows walls and obstacles, the traffic knows the fleet's robots; the lidar is for
 the rest (a box put down after the map was made, a robot of another daemon, a robot that

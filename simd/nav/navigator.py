@@ -257,6 +257,7 @@ class Navigator:
             if self._floor is not None:
                 self._floor.remove(robot)
                 self._floor.add(robot)
+            robot.reversed = False  # (back at its spawn pose: a reset run drives as a fresh one)
         self._snaps.clear()
         self._rows_of = self._drive_of = None
 
@@ -272,6 +273,7 @@ class Navigator:
             self._floor.remove(robot)
             self._floor.add(robot)
         robot.xy = None
+        robot.reversed = False
         self._drive_of = None
 
     def goals(self) -> list[NavigateRequest]:
@@ -480,8 +482,9 @@ class Navigator:
         if floor.costmap is not None:
             self._choose_ends(driven, x, y, yaw, aim_x, aim_y)
             back_of = np.array([r.reversed for r in driven])
-        lidar = np.array([
-            LOOK_AHEAD_M if abs(math.remainder(float(yaw[k]) - r.lidar_yaw, 2 * math.pi)) > 0.3 else r.lidar_room
+        lidar = np.array([  # the room on the end it drives with, if it still heads as it did then
+            LOOK_AHEAD_M if abs(math.remainder(float(real_yaw[k]) - r.lidar_yaw, 2 * math.pi)) > 0.3
+            else r.lidar_rooms[r.reversed]
             for k, r in enumerate(driven)
         ])  # fmt: skip
         lidar_room = np.maximum(lidar - LIDAR_STOP_M, 0.0)
@@ -545,8 +548,9 @@ class Navigator:
 
     def _mark_seen(self, robot: NavRobot, now: float) -> None:
         """What the lidar keeps seeing in the way goes on this robot's map; then a new plan."""
-        if len(robot.lidar_hits):
-            robot.marks.append((robot.lidar_hits, now + MARK_S))
+        hits = robot.lidar_hits[robot.reversed]
+        if len(hits):
+            robot.marks.append((hits, now + MARK_S))
         robot.recoveries += 1
         robot.blocked_since = None
         robot.planned = False
@@ -570,10 +574,8 @@ class Navigator:
             idx = snap.scan_index[wanted]
             offsets = np.array([r.model.lidar_offset for r in robots], dtype=np.float64)
             half = np.array([float(np.max(np.abs(r.model.outline[:, 1]))) for r in robots])
-            back = np.array([r.reversed for r in robots])
-            # the edge of the end it drives with, in the frame of that end
-            front = np.array([float(np.max(-r.model.outline[:, 0] if r.reversed else r.model.outline[:, 0]))
-                              for r in robots])  # fmt: skip
+            front = np.array([float(np.max(r.model.outline[:, 0])) for r in robots])
+            rear = np.array([float(np.max(-r.model.outline[:, 0])) for r in robots])
             sx, sy, syaw = snap.x[idx], snap.y[idx], snap.yaw[idx]
             px, py = self._guard.points(scans, offsets)
             c, s = np.cos(syaw)[:, None], np.sin(syaw)[:, None]
@@ -582,12 +584,16 @@ class Navigator:
             owner = floor.owner_at(wx, wy)
             # what the map or the fleet explains is not the lidar's business
             known = ((owner != FREE) & (owner != mine)) | self._on_map(wx, wy)
-            ends = np.where(back, -1.0, 1.0)[:, None]  # (a robot driving backwards looks behind it)
-            rooms, seen = self._guard.room_ahead(px * ends, py * ends, half, front, known)
+            ahead, seen_ahead = self._guard.room_ahead(px, py, half, front, known)
+            # and behind (the frame turned half round), for when it drives with its back first
+            behind, seen_behind = self._guard.room_ahead(-px, -py, half, rear, known)
             for k, robot in enumerate(robots):
-                robot.lidar_room = float(rooms[k])
-                robot.lidar_yaw = float(syaw[k]) + (math.pi if robot.reversed else 0.0)
-                robot.lidar_hits = np.stack([wx[k][seen[k]], wy[k][seen[k]]], axis=1)
+                robot.lidar_rooms = (float(ahead[k]), float(behind[k]))
+                robot.lidar_yaw = float(syaw[k])
+                robot.lidar_hits = (
+                    np.stack([wx[k][seen_ahead[k]], wy[k][seen_ahead[k]]], axis=1),
+                    np.stack([wx[k][seen_behind[k]], wy[k][seen_behind[k]]], axis=1),
+                )
 
     def _navigating(self, namespace: str) -> bool:
         robot = self.robots.get(namespace)

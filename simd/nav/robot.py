@@ -31,9 +31,12 @@ class NavRobot:
     planned: bool = False  # its floor has a plan for its goal
     xy: tuple[float, float] | None = None  # where it is, as of the last control step
     now: float = 0.0
-    lidar_room: float = LOOK_AHEAD_M
-    lidar_yaw: float = 0.0  # heading when that room was measured
-    lidar_hits: F64 = field(default_factory=lambda: np.zeros((0, 2)))  # what it saw ahead (world frame)
+    #: the free room its lidar saw ahead of its front and of its back (lidar_guard), its
+    #: heading then, and the returns in either corridor (world frame): the room on the end
+    #: it drives with counts (``reversed``), and its returns are what it marks when blocked
+    lidar_rooms: tuple[float, float] = (LOOK_AHEAD_M, LOOK_AHEAD_M)
+    lidar_yaw: float = 0.0
+    lidar_hits: tuple[F64, F64] = field(default_factory=lambda: (np.zeros((0, 2)), np.zeros((0, 2))))
     blocked_since: float | None = None
     stuck_since: float | None = None
     marks: list[tuple[F64, float]] = field(default_factory=list)  # points it saw blocked, until

@@ -137,9 +137,9 @@ class Traffic:
     # -- where robots stand ---------------------------------------------------------------------
 
     def box(self, x: float, y: float, r: float) -> tuple[int, ...]:
-        """The cells (flat) that the circle of radius ``r`` about (x, y) overlaps (its bounding
-        square's cells less the corners it misses: a robot crossing a cell's corner diagonally
-        holds three cells, not four)."""
+        """The cells (flat) that the circle of radius ``r`` about (x, y) overlaps: its bounding
+        square's cells less the corner cells it misses (a robot near a cell's corner, but not
+        within ``r`` of it, holds three cells where its square would take four)."""
         g = self.graph.grid
         c0 = max(0, math.floor((x - r - g.x0) / g.resolution))
         c1 = min(g.width - 1, math.floor((x + r - g.x0) / g.resolution))
