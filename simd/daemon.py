@@ -42,6 +42,10 @@ log = logging.getLogger("simd")
 TRANSPORT_DEFAULTS = {
     "transport/link/tx/queue/size/data": "16",
     "transport/link/tx/queue/size/data_low": "16",  # scans (the publisher's lower priority)
+    # zenoh hands a reply over 3 kB to a client on this machine through shared memory, from a
+    # pool of 16 MiB by default: the robot list of 20 000 robots (16 MB) did not fit with
+    # another reply in flight and went through TCP (docs/robustness.md)
+    "transport/shared_memory/transport_optimization/pool_size": str(48 * 1024 * 1024),
 }
 
 
