@@ -197,6 +197,8 @@ class Floor:
                 near = math.hypot(cx - robot.xy[0], cy - robot.xy[1]) <= DECIDE_WITHIN_CELLS * size
             if traffic.wants_decision(m, near):
                 deciding.append(m)
+        if deciding and traffic.forecasting:  # (after the broken promises and the priorities of now)
+            traffic.forecast_round(now)
         for m in sorted(deciding, key=lambda m: m.priority):
             if m.slot not in traffic.decided:  # pushed already this round
                 traffic.decide(m, now)

@@ -102,7 +102,7 @@ class Traffic:
         self.ahead = ahead  # cells a robot commits to ahead of its own
         self.forecasting = forecast
         #: cell -> (from, until, slot, priority): when each robot's body is expected over it
-        #: (rebuilt every control step when ``forecasting``)
+        #: (rebuilt by ``forecast_round`` in a control step where robots decide)
         self.forecast: dict[int, list[tuple[float, float, int, tuple[float, int]]]] = {}
         self.now = 0.0
         self.owner = np.full(graph.count, FREE, dtype=np.int64)
@@ -229,8 +229,6 @@ class Traffic:
         decide again (the robot being followed out of a cell stopped in it instead)."""
         self.decided.clear()
         self.now = now
-        if self.forecasting:
-            self._forecast(now)
         for m in self.movers.values():
             for k, cells in enumerate(m.needs):
                 if self._promise_broken(m, cells):
@@ -294,7 +292,7 @@ class Traffic:
             x, y = cx, cy
         return out
 
-    def _forecast(self, now: float) -> None:
+    def forecast_round(self, now: float) -> None:
         """Where every robot with a goal is expected over the next cells of its way, and
         when: from where it stands, through the cells it committed to, then down its distance
         field, at top speed (a robot that waits is expected to go on at once: forecasting it
