@@ -185,7 +185,7 @@ class Floor:
         first; a robot that stands in its goal's cell but cannot reach the goal point for the
         robots around it goes last (as PIBT resets an agent's priority at its goal)."""
         traffic = self.traffic
-        traffic.begin_round(now)
+        traffic.begin_round()
         size = self.graph.size
         deciding = []
         for robot in driven:

@@ -575,7 +575,7 @@ class Navigator:
             offsets = np.array([r.model.lidar_offset for r in robots], dtype=np.float64)
             half = np.array([float(np.max(np.abs(r.model.outline[:, 1]))) for r in robots])
             front = np.array([float(np.max(r.model.outline[:, 0])) for r in robots])
-            rear = np.array([float(np.max(-r.model.outline[:, 0])) for r in robots])
+            rear = -np.array([float(np.min(r.model.outline[:, 0])) for r in robots])
             sx, sy, syaw = snap.x[idx], snap.y[idx], snap.yaw[idx]
             px, py = self._guard.points(scans, offsets)
             c, s = np.cos(syaw)[:, None], np.sin(syaw)[:, None]
@@ -585,8 +585,10 @@ class Navigator:
             # what the map or the fleet explains is not the lidar's business
             known = ((owner != FREE) & (owner != mine)) | self._on_map(wx, wy)
             ahead, seen_ahead = self._guard.room_ahead(px, py, half, front, known)
-            # and behind (the frame turned half round), for when it drives with its back first
-            behind, seen_behind = self._guard.room_ahead(-px, -py, half, rear, known)
+            if floor.costmap is not None:  # and behind (the frame turned half round), for when it
+                behind, seen_behind = self._guard.room_ahead(-px, -py, half, rear, known)  # drives back first
+            else:  # (in lanes robots always drive forwards)
+                behind, seen_behind = np.full(len(robots), LOOK_AHEAD_M), np.zeros_like(seen_ahead)
             for k, robot in enumerate(robots):
                 robot.lidar_rooms = (float(ahead[k]), float(behind[k]))
                 robot.lidar_yaw = float(syaw[k])

@@ -104,7 +104,7 @@ class Traffic:
         #: cell -> (from, until, slot, priority): when each robot's body is expected over it
         #: (rebuilt by ``forecast_round`` in a control step where robots decide)
         self.forecast: dict[int, list[tuple[float, float, int, tuple[float, int]]]] = {}
-        self.now = 0.0
+        self.forecast_at = 0.0  # the sim time the forecast starts from
         self.owner = np.full(graph.count, FREE, dtype=np.int64)
         self.pending = np.full(graph.count, FREE, dtype=np.int64)
         self.movers: dict[int, Mover] = {}
@@ -224,11 +224,10 @@ class Traffic:
 
     # -- deciding --------------------------------------------------------------------------------
 
-    def begin_round(self, now: float = 0.0) -> None:
+    def begin_round(self) -> None:
         """A control step starts: promises that cannot be kept are dropped, so their robots
         decide again (the robot being followed out of a cell stopped in it instead)."""
         self.decided.clear()
-        self.now = now
         for m in self.movers.values():
             for k, cells in enumerate(m.needs):
                 if self._promise_broken(m, cells):
@@ -297,14 +296,13 @@ class Traffic:
         when: from where it stands, through the cells it committed to, then down its distance
         field, at top speed (a robot that waits is expected to go on at once: forecasting it
         to stay a while longer measured no better in bench.nav_crowd)."""
-        self.forecast = {}
-        size = self.graph.size
+        self.forecast, self.forecast_at = {}, now
         for m in self.movers.values():
             if m.dist is None or m.cell == FREE:
                 continue
             path = [m.cell, *m.route]
             path += self.descent(m, path[-1], FORECAST_CELLS)
-            half = (size / 2 + m.radius) / m.model.max_linear_velocity
+            half = self._half_crossing(m)
             for c, t in self._timed(m, path, now):
                 self.forecast.setdefault(c, []).append((t - half, t + half, m.slot, m.priority))
 
@@ -315,17 +313,21 @@ class Traffic:
         way left at top speed."""
         assert m.dist is not None
         path = [frontier, n, *self.descent(m, n, FORECAST_CELLS - 1)]
-        v = m.model.max_linear_velocity
-        half = (self.graph.size / 2 + m.radius) / v
-        delay, t_last = 0.0, self.now
-        for c, t in self._timed(m, path, self.now):
+        half = self._half_crossing(m)
+        delay, t_last = 0.0, self.forecast_at
+        for c, t in self._timed(m, path, self.forecast_at):
             t += delay
             for t0, t1, slot, priority in self.forecast.get(c, ()):
                 if slot != m.slot and priority < m.priority and t0 < t + half and t - half < t1:
                     delay += t1 - (t - half)
                     t = t1 + half
             t_last = t
-        return t_last + float(m.dist[path[-1]]) / v
+        return t_last + float(m.dist[path[-1]]) / m.model.max_linear_velocity
+
+    def _half_crossing(self, m: Mover) -> float:
+        """How long the robot's body is over a cell before (and after) its centre is at the
+        cell's centre, at top speed."""
+        return (self.graph.size / 2 + m.radius) / m.model.max_linear_velocity
 
     def wants_decision(self, m: Mover, near_end: bool) -> bool:
         """Whether the robot should commit to a further cell now: it has a goal, it is not at

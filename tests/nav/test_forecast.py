@@ -38,7 +38,7 @@ def expected_times(crosser: str) -> list[float]:
     traffic = nav.floor.traffic
     assert traffic.forecasting  # (an open floor)
     b = traffic.movers[nav.robots["b"].slot]
-    traffic.begin_round(sim.time)
+    traffic.begin_round()
     traffic.forecast_round(sim.time)
     frontier = b.route[-1] if b.route else b.cell
     return [traffic._expected(b, n, frontier) for n, _ in traffic._moves_from(b, frontier)]
