@@ -1,14 +1,14 @@
 """The compiled fast paths: one registry of them, and the one switch that turns them off.
 
-Five hot loops have a C twin built with the package (when a C compiler is there): the lidar
-kernel, the lidar's noise and masking, the diff-drive arithmetic, the odometry packer, and
-navigation's distance fields on the cell graph (Dijkstra).
+Six hot loops have a C twin built with the package (when a C compiler is there): the lidar
+kernel, the lidar's noise and masking, the diff-drive arithmetic, the odometry packer, the robot
+list's packer, and navigation's distance fields on the cell graph (Dijkstra).
 Each numpy version stays in the code as the reference that tests compare the C one with, and
 as the fallback where nothing was compiled. ``KERNELS`` lists them: every module that has a
 twin asks for it here by its label (``load("drive")``), and ``status()`` reports the same
 choices without importing those modules, so nothing here depends on them. The core's own
 kernels are listed here; a layer above the core registers its own when it is imported
-(``simd.wire`` the odometry packer, ``simd.nav`` the distance fields: their ``__init__``), so
+(``simd.wire`` the two packers, ``simd.nav`` the distance fields: their ``__init__``), so
 the core never names a module above it.
 
 ``FLEETSIM_NATIVE`` chooses: ``auto`` (default) uses what is built, ``numpy`` uses none of

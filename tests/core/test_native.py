@@ -189,7 +189,12 @@ def test_the_core_names_only_its_own_kernels_and_the_layers_above_register_their
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     core, everything = json.loads(done.stdout)
     assert core and all(module.startswith("simd.core.") for module in core.values()), core
-    assert everything == {**core, "odompack": "simd.wire._odompack", "cellpaths": "simd.nav._cellpaths"}
+    assert everything == {
+        **core,
+        "odompack": "simd.wire._odompack",
+        "listpack": "simd.wire._listpack",
+        "cellpaths": "simd.nav._cellpaths",
+    }
     native.register("odompack", native.KERNELS["odompack"])  # the same again: no change
     with pytest.raises(ValueError, match=re.escape("'drive' is simd.core._drive already")):
         native.register("drive", native.Kernel("elsewhere._drive", "elsewhere/_drive.c"))
@@ -225,6 +230,7 @@ def test_status_reports_the_path_each_loop_took() -> None:
     assert all(v.startswith("numpy (FLEETSIM_NATIVE=numpy") for v in off.values()), off
     lidar_only = paths_in_a_fresh_process(FLEETSIM_LIDAR="numpy")
     assert lidar_only["raycast"].startswith("numpy") and lidar_only["drive"] == lidar_only["odompack"] == "native"
+    assert lidar_only.get("listpack", "native") == "native"
     if sensor_model._native is not None:
         assert lidar_only["scannoise"] == "native" and off["scannoise"].startswith("numpy (FLEETSIM_NATIVE")
 

@@ -1,5 +1,6 @@
 """The robot list from byte templates is the MessagePack of the same ``RobotList``, to the byte,
-whatever the fleet's size, names, models and numbers, and however it changes between lists."""
+whatever the fleet's size, names, models and numbers, and however it changes between lists: on
+the numpy path and on the compiled one (simd/wire/_listpack.c) alike."""
 
 from __future__ import annotations
 
@@ -14,10 +15,13 @@ from protocol.keys import Keys
 from protocol.messages import Time
 from simd.core.models import MODELS
 from simd.core.snapshot import RobotState
+from simd.wire import list_codec
 from simd.wire.convert import robot_record
 from simd.wire.list_codec import RobotListEncoder
 
 KEYS = Keys("fleet")
+needs_listpack = pytest.mark.skipif(list_codec._native is None, reason="simd.wire._listpack is not built")
+PATHS = [pytest.param(False, id="numpy"), pytest.param(True, id="native", marks=needs_listpack)]
 
 
 def _records(n: int, start: int = 0) -> list[RobotRecord]:
@@ -38,23 +42,26 @@ def _expected(time: float, records: list[RobotRecord], columns: list[np.ndarray]
     return msgspec.msgpack.encode(RobotList(stamp=Time.from_seconds(time), robots=robots))
 
 
+@pytest.mark.parametrize("native", PATHS)
 @pytest.mark.parametrize("n", [0, 1, 15, 16, 300, 70_000])
-def test_the_list_is_byte_identical_to_encoding_the_struct(n: int) -> None:
+def test_the_list_is_byte_identical_to_encoding_the_struct(n: int, native: bool) -> None:
     rng = np.random.default_rng(n)
     records = _records(min(n, 300))
     records = [records[i % len(records)] for i in range(n)] if records else []  # (70 000: records repeat)
     columns = [rng.normal(0, 50, n) for _ in range(5)]
     columns[0][:1] = [0.0] if n else []  # zeros, negatives, large and small numbers alike
-    enc = RobotListEncoder()
+    enc = RobotListEncoder(native)
     got = enc.encode(12.345, records, *columns)
     assert got == _expected(12.345, records, columns)
-    assert msgspec.msgpack.decode(got, type=RobotList).robots[:3] == msgspec.msgpack.decode(
-        _expected(12.345, records, columns), type=RobotList
-    ).robots[:3]
+    assert (
+        msgspec.msgpack.decode(got, type=RobotList).robots[:3]
+        == msgspec.msgpack.decode(_expected(12.345, records, columns), type=RobotList).robots[:3]
+    )
 
 
-def test_a_fleet_that_changes_between_lists_is_laid_out_again() -> None:
-    enc = RobotListEncoder()
+@pytest.mark.parametrize("native", PATHS)
+def test_a_fleet_that_changes_between_lists_is_laid_out_again(native: bool) -> None:
+    enc = RobotListEncoder(native)
     first = _records(40)
     rng = np.random.default_rng(1)
     for records in (first, first[5:], [*first[5:], *_records(3, start=100)], first[5:]):
@@ -75,12 +82,13 @@ _CHANGES = st.one_of(
 )
 
 
+@pytest.mark.parametrize("native", PATHS)
 @settings(max_examples=60, deadline=None)
 @given(start=st.integers(0, 40), changes=st.lists(st.lists(_CHANGES, max_size=4), max_size=10), seed=st.integers(0, 99))
 def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_encoding(
-    start: int, changes: list[list[tuple[str, int]]], seed: int
+    start: int, changes: list[list[tuple[str, int]]], seed: int, native: bool
 ) -> None:
-    enc = RobotListEncoder()
+    enc = RobotListEncoder(native)
     rng = np.random.default_rng(seed)
     pool = iter(_records(400, start=1000))
     records = _records(start)
@@ -106,13 +114,15 @@ def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_enc
         assert enc.encode(float(t), records, *columns) == _expected(float(t), records, columns)
 
 
-def test_columns_of_another_length_are_refused() -> None:
+@pytest.mark.parametrize("native", PATHS)
+def test_columns_of_another_length_are_refused(native: bool) -> None:
     with pytest.raises(ValueError, match="2 records"):
-        RobotListEncoder().encode(0.0, _records(2), *([np.zeros(3)] * 5))
+        RobotListEncoder(native).encode(0.0, _records(2), *([np.zeros(3)] * 5))
 
 
-def test_a_template_prepared_at_a_spawn_is_what_the_next_list_lays_out_and_none_is_kept() -> None:
-    enc = RobotListEncoder()
+@pytest.mark.parametrize("native", PATHS)
+def test_a_template_prepared_at_a_spawn_is_what_the_next_list_lays_out_and_none_is_kept(native: bool) -> None:
+    enc = RobotListEncoder(native)
     records = _records(3)
     enc.encode(1.0, records, *[np.zeros(3) for _ in range(5)])
     new, other = _records(2, start=50)
@@ -138,20 +148,52 @@ def _template_of(record: RobotRecord) -> tuple[bytes, list[int]]:
     return _template(record)
 
 
+@pytest.mark.parametrize("native", PATHS)
 @settings(max_examples=40, deadline=None)
 @given(n=st.integers(0, 60), picks=st.lists(st.integers(0, 10**6), max_size=80), seed=st.integers(0, 99))
-def test_a_list_of_some_rows_is_the_structs_encoding_of_those_records(n: int, picks: list[int], seed: int) -> None:
+def test_a_list_of_some_rows_is_the_structs_encoding_of_those_records(
+    n: int, picks: list[int], seed: int, native: bool
+) -> None:
     rng = np.random.default_rng(seed)
     records = _records(n)
     rows = [p % n for p in picks] if n else []  # any order, a row twice too
     columns = [rng.normal(0, 50, n) for _ in range(5)]
-    enc = RobotListEncoder()
+    enc = RobotListEncoder(native)
     got = enc.encode(3.5, records, *columns, rows=rows)
     assert got == _expected(3.5, [records[k] for k in rows], [c[rows] for c in columns])
     # and the layout it made serves the whole list, byte for byte, as before
     assert enc.encode(3.5, records, *columns) == _expected(3.5, records, columns)
 
 
-def test_rows_outside_the_records_are_refused() -> None:
+@pytest.mark.parametrize("native", PATHS)
+@pytest.mark.parametrize("row", [2, -1])
+def test_rows_outside_the_records_are_refused(native: bool, row: int) -> None:
     with pytest.raises(ValueError, match="rows outside"):
-        RobotListEncoder().encode(0.0, _records(2), *([np.zeros(2)] * 5), rows=[2])
+        RobotListEncoder(native).encode(0.0, _records(2), *([np.zeros(2)] * 5), rows=[row])
+
+
+@needs_listpack
+def test_the_compiled_packer_checks_every_index_before_it_writes() -> None:
+    """A record or a number outside the buffer, or arrays of the wrong kind, are refused with a
+    clear error: never a write outside the list (the numpy path would raise an IndexError)."""
+    pick = list_codec._native.pick  # type: ignore[union-attr]
+    buffer = np.zeros(40, dtype=np.uint8)
+    starts, lengths = np.array([0, 20], dtype=np.int64), np.array([20, 20], dtype=np.int64)
+    marks = np.tile(np.arange(0, 10, 2, dtype=np.int64), (2, 1))
+    cols = [np.ones(2) for _ in range(5)]
+    ok = pick(b"h", buffer, starts, lengths, marks, None, *cols)
+    assert len(ok) == 41 and ok[:1] == b"h"
+    assert ok[1 + 8 : 1 + 16] == np.array([1.0], dtype=">f8").tobytes()  # number 4 at 8, big-endian
+    with pytest.raises(ValueError, match="outside the buffer"):
+        pick(b"", buffer, starts, np.array([20, 21], dtype=np.int64), marks, None, *cols)
+    with pytest.raises(ValueError, match="outside the record"):
+        pick(b"", buffer, starts, lengths, marks + 11, None, *cols)
+    with pytest.raises(ValueError, match="expected 10"):
+        pick(b"", buffer, starts, lengths, marks[:1], None, *cols)
+    with pytest.raises(TypeError, match="item format"):
+        pick(b"", buffer, starts, lengths, marks, None, *([np.ones(2, dtype=np.float32)] * 5))
+    with pytest.raises(TypeError, match="C-contiguous"):
+        pick(b"", buffer, starts, lengths, marks, None, np.ones(4)[::2], *cols[1:])
+    # records out of order (a layout never is, but the copy must not assume it)
+    swapped = pick(b"", buffer, starts[::-1].copy(), lengths, marks, None, *cols)
+    assert swapped == pick(b"", buffer, starts, lengths, marks, np.array([1, 0], dtype=np.int64), *cols)
