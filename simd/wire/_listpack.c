@@ -17,6 +17,8 @@
  *   lengths  int64 (n,): how long record i is
  *   marks    int64 (n, 5): where in record i its five float64 numbers start (past the 0xcb byte)
  *   rows     None for every record in order, or int64 (m,): the records to copy, in that order
+ *            (None joins the records in index order: for a layout laid end to end from 0, which
+ *            is what list_codec makes, that is the buffer itself, as the numpy path copies it)
  *   x .. angular  float64 (n,): the numbers, written big-endian (MessagePack float 64)
  * Every index is checked before anything is written; the result is a new bytearray.
  */

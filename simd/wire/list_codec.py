@@ -82,8 +82,8 @@ def _array_header(n: int) -> bytes:
 @dataclass(eq=False)
 class _Layout:
     """Records laid end to end: their bytes, where each starts, how long each is and where its
-    five numbers are (relative to its start). Never changed once made: a list reads it without
-    the lock."""
+    five numbers are (relative to its start). Its arrays never change once made (the numpy
+    path's positions are computed from them on first use): a list reads it without the lock."""
 
     records: list[RobotRecord]  # held: the identities stay theirs while this layout lives
     identities: npt.NDArray[np.uint64]  # id() of each record

@@ -23,7 +23,7 @@ from simd.core import drive, native, sensor_model
 from simd.core.lidar import LidarSpec
 from simd.core.sim import SimConfig, Simulation
 from simd.core.worldfile import load_world
-from simd.wire import odom_codec
+from simd.wire import list_codec, odom_codec
 from simd.wire.odom_codec import OdometryEncoder
 
 needs_drive = pytest.mark.skipif(drive._native is None, reason="simd.core._drive is not built")
@@ -230,7 +230,8 @@ def test_status_reports_the_path_each_loop_took() -> None:
     assert all(v.startswith("numpy (FLEETSIM_NATIVE=numpy") for v in off.values()), off
     lidar_only = paths_in_a_fresh_process(FLEETSIM_LIDAR="numpy")
     assert lidar_only["raycast"].startswith("numpy") and lidar_only["drive"] == lidar_only["odompack"] == "native"
-    assert lidar_only.get("listpack", "native") == "native"
+    if list_codec._native is not None:
+        assert lidar_only["listpack"] == "native" and off["listpack"].startswith("numpy (FLEETSIM_NATIVE")
     if sensor_model._native is not None:
         assert lidar_only["scannoise"] == "native" and off["scannoise"].startswith("numpy (FLEETSIM_NATIVE")
 

@@ -4,6 +4,8 @@ the numpy path and on the compiled one (simd/wire/_listpack.c) alike."""
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 import numpy as np
 import pytest
@@ -50,6 +52,8 @@ def test_the_list_is_byte_identical_to_encoding_the_struct(n: int, native: bool)
     records = [records[i % len(records)] for i in range(n)] if records else []  # (70 000: records repeat)
     columns = [rng.normal(0, 50, n) for _ in range(5)]
     columns[0][:1] = [0.0] if n else []  # zeros, negatives, large and small numbers alike
+    special = [-0.0, math.inf, -math.inf, math.nan, 5e-324, 1.7976931348623157e308]
+    columns[1][: len(special)] = special[:n]  # and what a float64 can hold at its edges
     enc = RobotListEncoder(native)
     got = enc.encode(12.345, records, *columns)
     assert got == _expected(12.345, records, columns)
@@ -177,23 +181,39 @@ def test_the_compiled_packer_checks_every_index_before_it_writes() -> None:
     """A record or a number outside the buffer, or arrays of the wrong kind, are refused with a
     clear error: never a write outside the list (the numpy path would raise an IndexError)."""
     pick = list_codec._native.pick  # type: ignore[union-attr]
-    buffer = np.zeros(40, dtype=np.uint8)
+    buffer = np.arange(40, dtype=np.uint8)  # every byte tells where it came from
     starts, lengths = np.array([0, 20], dtype=np.int64), np.array([20, 20], dtype=np.int64)
-    marks = np.tile(np.arange(0, 10, 2, dtype=np.int64), (2, 1))
-    cols = [np.ones(2) for _ in range(5)]
-    ok = pick(b"h", buffer, starts, lengths, marks, None, *cols)
-    assert len(ok) == 41 and ok[:1] == b"h"
-    assert ok[1 + 8 : 1 + 16] == np.array([1.0], dtype=">f8").tobytes()  # number 4 at 8, big-endian
+    marks = np.array([[0, 8, 12, 4, 12], [12, 4, 0, 8, 12]], dtype=np.int64)  # each record its own order
+    cols = [np.array([10.0 * k + 1, 10.0 * k + 2]) for k in range(5)]  # column k, record i: 10k + i + 1
+
+    def expected(order: list[int]) -> bytes:
+        out = b"h"
+        for i in order:
+            record = bytearray(buffer[starts[i] : starts[i] + lengths[i]].tobytes())
+            for k in range(5):  # in field order: a later field written over an earlier one wins
+                record[marks[i, k] : marks[i, k] + 8] = np.array([cols[k][i]], dtype=">f8").tobytes()
+            out += bytes(record)
+        return out
+
+    assert pick(b"h", buffer, starts, lengths, marks, None, *cols) == expected([0, 1])
+    assert pick(b"h", buffer, starts, lengths, marks, np.array([1, 1, 0], dtype=np.int64), *cols) == expected([1, 1, 0])
+    assert pick(b"h", buffer, starts, lengths, marks, np.zeros(0, dtype=np.int64), *cols) == b"h"
+    # records out of order: copied from where each starts, in index order
+    swapped = pick(
+        b"h", buffer, starts[::-1].copy(), lengths, marks[::-1].copy(), None, *[c[::-1].copy() for c in cols]
+    )
+    assert swapped == expected([1, 0])
     with pytest.raises(ValueError, match="outside the buffer"):
         pick(b"", buffer, starts, np.array([20, 21], dtype=np.int64), marks, None, *cols)
+    with pytest.raises(ValueError, match="outside the buffer"):
+        pick(b"", buffer, np.array([0, 2**62], dtype=np.int64), lengths, marks, None, *cols)
     with pytest.raises(ValueError, match="outside the record"):
-        pick(b"", buffer, starts, lengths, marks + 11, None, *cols)
+        pick(b"", buffer, starts, lengths, marks + 9, None, *cols)
+    with pytest.raises(ValueError, match="rows outside"):
+        pick(b"", buffer, starts, lengths, marks, np.array([0, -(2**63)], dtype=np.int64), *cols)
     with pytest.raises(ValueError, match="expected 10"):
         pick(b"", buffer, starts, lengths, marks[:1], None, *cols)
     with pytest.raises(TypeError, match="item format"):
         pick(b"", buffer, starts, lengths, marks, None, *([np.ones(2, dtype=np.float32)] * 5))
     with pytest.raises(TypeError, match="C-contiguous"):
         pick(b"", buffer, starts, lengths, marks, None, np.ones(4)[::2], *cols[1:])
-    # records out of order (a layout never is, but the copy must not assume it)
-    swapped = pick(b"", buffer, starts[::-1].copy(), lengths, marks, None, *cols)
-    assert swapped == pick(b"", buffer, starts, lengths, marks, np.array([1, 0], dtype=np.int64), *cols)
