@@ -86,12 +86,25 @@ _CHANGES = st.one_of(
 )
 
 
+#: the compiled packer's shared buffer: with its usual room, and with none (every spawn then
+#: copies the records into a new buffer; the numpy path has no room either way)
+ROOM = [pytest.param((list_codec.SPARE, list_codec.MIN_SPARE), id="room"), pytest.param((0.0, 0), id="no-room")]
+
+
+@pytest.mark.parametrize("room", ROOM)
 @pytest.mark.parametrize("native", PATHS)
 @settings(max_examples=60, deadline=None)
 @given(start=st.integers(0, 40), changes=st.lists(st.lists(_CHANGES, max_size=4), max_size=10), seed=st.integers(0, 99))
 def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_encoding(
-    start: int, changes: list[list[tuple[str, int]]], seed: int, native: bool
+    start: int, changes: list[list[tuple[str, int]]], seed: int, native: bool, room: tuple[float, int]
 ) -> None:
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(list_codec, "SPARE", room[0])
+        mp.setattr(list_codec, "MIN_SPARE", room[1])
+        _lists_after_changes(start, changes, seed, native)
+
+
+def _lists_after_changes(start: int, changes: list[list[tuple[str, int]]], seed: int, native: bool) -> None:
     enc = RobotListEncoder(native)
     rng = np.random.default_rng(seed)
     pool = iter(_records(400, start=1000))
@@ -217,3 +230,39 @@ def test_the_compiled_packer_checks_every_index_before_it_writes() -> None:
         pick(b"", buffer, starts, lengths, marks, None, *([np.ones(2, dtype=np.float32)] * 5))
     with pytest.raises(TypeError, match="C-contiguous"):
         pick(b"", buffer, starts, lengths, marks, None, np.ones(4)[::2], *cols[1:])
+
+
+@needs_listpack
+def test_the_compiled_packers_layouts_share_a_buffer_until_it_is_full() -> None:
+    """A spawn writes the new record after the others in the same buffer, a delete copies
+    nothing, and only a spawn that does not fit copies the records into a new buffer; every
+    list of every layout stays the structs' encoding, the older layouts' too."""
+    enc = RobotListEncoder(native=True)
+    records = _records(30)
+    columns = [np.arange(30.0) + k for k in range(5)]
+    assert enc.encode(1.0, records, *columns) == _expected(1.0, records, columns)
+    first = enc._layout
+    first_bytes = first.buffer[: first.used].tobytes()
+    room = len(first.buffer) - first.used
+    assert room >= list_codec.MIN_SPARE
+    spawned = [*records, *_records(1, start=500)]
+    cols = [np.arange(31.0) * 2 for _ in range(5)]
+    assert enc.encode(2.0, spawned, *cols) == _expected(2.0, spawned, cols)
+    second = enc._layout
+    assert second.buffer is first.buffer and second.used > first.used
+    deleted = spawned[3:]
+    cols = [np.arange(28.0) * 3 for _ in range(5)]
+    assert enc.encode(3.0, deleted, *cols) == _expected(3.0, deleted, cols)
+    assert enc._layout.buffer is first.buffer and enc._layout.used == second.used
+    # what the first layout's lists read is unchanged by what the later ones wrote
+    assert first.buffer[: first.used].tobytes() == first_bytes
+    # spawns until the room is gone: then one new buffer, the records in order, room after them
+    pool = iter(_records(2000, start=1000))
+    grown = list(records)
+    while enc._layout.buffer is first.buffer:
+        grown = [*grown, next(pool)]
+        cols = [np.ones(len(grown)) * k for k in range(5)]
+        assert enc.encode(4.0, grown, *cols) == _expected(4.0, grown, cols)
+    fresh = enc._layout
+    assert fresh.starts[0] == 0 and np.all(fresh.starts[1:] == np.cumsum(fresh.lengths)[:-1])
+    assert len(fresh.buffer) - fresh.used >= list_codec.MIN_SPARE
