@@ -184,8 +184,9 @@ class _Layout:
                          ) -> _Layout:  # fmt: skip
         """The layout of ``records`` for the compiled packer: the records this one has stay
         where they are in its buffer, the others are written into it past ``used``; only when
-        they do not fit are the records copied into a new buffer (in order, with ``SPARE``
-        room after them). A spawn or a delete among 20 000 robots then copies no 16 MB."""
+        they do not fit, or the records kept are less than half of what the buffer holds, are
+        the records copied into a new buffer (in order, with ``SPARE`` room after them). A spawn
+        or a delete among 20 000 robots then copies no 16 MB."""
         assert _native is not None
         c = self._carry(records, template)
         found = c.source >= 0
@@ -193,7 +194,11 @@ class _Layout:
         starts[found] = self.starts[c.source[found]]
         need = sum(len(raw) for raw in c.fresh.values())
         buffer, used = self.buffer, self.used
-        if used + need > len(buffer):  # copied, in order, into a new buffer with room after them
+        kept_bytes = int(c.lengths[found].sum())
+        # copied, in order, into a new buffer with room after them: when the new ones do not fit,
+        # or when most of what the buffer holds is the records of robots gone (a fleet that
+        # shrank would otherwise keep the bytes of its biggest size)
+        if used + need > len(buffer) or 2 * kept_bytes < used:
             kept = c.source[found]
             zeros = np.zeros(len(self.starts))  # (the numbers are written by every list anyway)
             packed = _native.pick(b"", self.buffer, self.starts, self.lengths, self.marks, kept, *[zeros] * 5)

@@ -266,3 +266,20 @@ def test_the_compiled_packers_layouts_share_a_buffer_until_it_is_full() -> None:
     fresh = enc._layout
     assert fresh.starts[0] == 0 and np.all(fresh.starts[1:] == np.cumsum(fresh.lengths)[:-1])
     assert len(fresh.buffer) - fresh.used >= list_codec.MIN_SPARE
+
+
+@needs_listpack
+def test_a_fleet_that_shrank_to_less_than_half_is_copied_into_a_smaller_buffer() -> None:
+    enc = RobotListEncoder(native=True)
+    records = _records(200)
+    enc.encode(1.0, records, *[np.zeros(200) for _ in range(5)])
+    big = enc._layout
+    most = records[:120]  # more than half of the bytes stays: the buffer is kept
+    enc.encode(2.0, most, *[np.ones(120) for _ in range(5)])
+    assert enc._layout.buffer is big.buffer
+    few = records[:10]
+    cols = [np.full(10, 3.0) for _ in range(5)]
+    assert enc.encode(3.0, few, *cols) == _expected(3.0, few, cols)
+    small = enc._layout
+    assert small.buffer is not big.buffer and small.used == int(small.lengths.sum())
+    assert len(small.buffer) < len(big.buffer) / 2
