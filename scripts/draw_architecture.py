@@ -57,7 +57,8 @@ def layers(ax: plt.Axes) -> None:
         "stepping   lockstep steps in slices · status: answers\n  without the loop · local: requests on the "
         "caller's thread\nports.py   the seam: Adapter, events, results", LAYER)
     box(ax, 5.1, 3.7, 4.7, 1.9, "simd.wire", "convert     core values -> protocol messages\nodom_codec  "
-        "byte templates (+ _odompack.c)\nscan_codec  byte templates\nfleet_codec one message a tick",
+        "byte templates (+ _odompack.c)\nscan_codec  byte templates\nfleet_codec one message a tick\n"
+        "list_codec  the robot list (+ _listpack.c)",
         WIRE)
     box(ax, 0.2, 1.0, 9.6, 2.4, "simd.core   (no zenoh, no wire, no adapters)",
         "sim.py       Simulation: spawn rules, commands, the tick, reset\nrobots.py    the robot table: "
