@@ -29,55 +29,9 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "_buffers.h"
+
 #define FIELDS 5
-
-static int get_buffer(PyObject *obj, Py_buffer *view, const char *name, char kind, Py_ssize_t count) {
-    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
-        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous buffer", name);
-        return -1;
-    }
-    const char *f = view->format ? view->format : "B";
-    if (*f == '<' || *f == '=' || *f == '@') {
-        f++;
-    }
-    int ok;
-    Py_ssize_t itemsize;
-    switch (kind) {
-    case 'B':
-        ok = strcmp(f, "B") == 0;
-        itemsize = 1;
-        break;
-    case 'q':
-        ok = strcmp(f, "q") == 0 || strcmp(f, "l") == 0;
-        itemsize = 8;
-        break;
-    default: /* 'd' */
-        ok = strcmp(f, "d") == 0;
-        itemsize = 8;
-        break;
-    }
-    if (!ok || view->itemsize != itemsize) {
-        PyErr_Format(PyExc_TypeError, "%s has item format '%s' (size %zd), expected '%c' (size %zd)", name,
-                     view->format ? view->format : "B", view->itemsize, kind, itemsize);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    if (count >= 0 && view->len != count * itemsize) {
-        PyErr_Format(PyExc_ValueError, "%s holds %zd items, expected %zd", name, view->len / itemsize, count);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
-
-static inline uint64_t to_big_endian(double v) {
-    uint64_t u;
-    memcpy(&u, &v, sizeof u);
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    u = __builtin_bswap64(u);
-#endif
-    return u;
-}
 
 static PyObject *pick(PyObject *self, PyObject *args) {
     (void)self;
@@ -91,32 +45,32 @@ static PyObject *pick(PyObject *self, PyObject *args) {
     int held[10] = {0};
     PyObject *out = NULL;
     const char *names[10] = {"buffer", "starts", "lengths", "marks", "rows", "x", "y", "yaw", "linear", "angular"};
-    if (get_buffer(objs[0], &views[0], names[0], 'B', -1) < 0) {
+    if (get_buffer(objs[0], &views[0], names[0], "B", 1, -1) < 0) {
         goto done;
     }
     held[0] = 1;
-    if (get_buffer(objs[1], &views[1], names[1], 'q', -1) < 0) {
+    if (get_buffer(objs[1], &views[1], names[1], "q", 8, -1) < 0) {
         goto done;
     }
     held[1] = 1;
     Py_ssize_t n = views[1].len / 8;
-    if (get_buffer(objs[2], &views[2], names[2], 'q', n) < 0) {
+    if (get_buffer(objs[2], &views[2], names[2], "q", 8, n) < 0) {
         goto done;
     }
     held[2] = 1;
-    if (get_buffer(objs[3], &views[3], names[3], 'q', FIELDS * n) < 0) {
+    if (get_buffer(objs[3], &views[3], names[3], "q", 8, FIELDS * n) < 0) {
         goto done;
     }
     held[3] = 1;
     int all = objs[4] == Py_None;
     if (!all) {
-        if (get_buffer(objs[4], &views[4], names[4], 'q', -1) < 0) {
+        if (get_buffer(objs[4], &views[4], names[4], "q", 8, -1) < 0) {
             goto done;
         }
         held[4] = 1;
     }
     for (int k = 0; k < FIELDS; k++) {
-        if (get_buffer(objs[5 + k], &views[5 + k], names[5 + k], 'd', n) < 0) {
+        if (get_buffer(objs[5 + k], &views[5 + k], names[5 + k], "d", 8, n) < 0) {
             goto done;
         }
         held[5 + k] = 1;

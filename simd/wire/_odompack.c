@@ -24,41 +24,9 @@
 #include <stdint.h>
 #include <string.h>
 
+#include "_buffers.h"
+
 #define FIELDS 7
-
-static int get_buffer(PyObject *obj, Py_buffer *view, const char *name, const char *fmt, Py_ssize_t itemsize,
-                      Py_ssize_t count) {
-    if (PyObject_GetBuffer(obj, view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
-        PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous buffer", name);
-        return -1;
-    }
-    const char *f = view->format ? view->format : "B";
-    if (*f == '<' || *f == '=' || *f == '@') {
-        f++;
-    }
-    int fmt_ok = strcmp(f, fmt) == 0 || (itemsize == 8 && fmt[0] == 'q' && strcmp(f, "l") == 0);
-    if (!fmt_ok || view->itemsize != itemsize) {
-        PyErr_Format(PyExc_TypeError, "%s has item format '%s' (size %zd), expected '%s' (size %zd)", name,
-                     view->format ? view->format : "B", view->itemsize, fmt, itemsize);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    if (count >= 0 && view->len != count * itemsize) {
-        PyErr_Format(PyExc_ValueError, "%s holds %zd items, expected %zd", name, view->len / itemsize, count);
-        PyBuffer_Release(view);
-        return -1;
-    }
-    return 0;
-}
-
-static inline uint64_t to_big_endian(double v) {
-    uint64_t u;
-    memcpy(&u, &v, sizeof u);
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
-    u = __builtin_bswap64(u);
-#endif
-    return u;
-}
 
 static PyObject *pack(PyObject *self, PyObject *args) {
     (void)self;

@@ -122,11 +122,7 @@ class _Layout:
     starts: npt.NDArray[np.int64]
     lengths: npt.NDArray[np.int64]
     marks: npt.NDArray[np.int64]  # (n, 5)
-    used: int = -1  # the bytes of the buffer in use, by this layout's records or earlier ones' (-1: all)
-
-    def __post_init__(self) -> None:
-        if self.used < 0:
-            self.used = len(self.buffer)
+    used: int  # the bytes of the buffer in use, by this layout's records or earlier ones'
 
     @functools.cached_property
     def scatter(self) -> npt.NDArray[np.int64]:
@@ -138,7 +134,9 @@ class _Layout:
     @classmethod
     def empty(cls) -> _Layout:
         none = np.zeros(0, dtype=np.int64)
-        return cls([], carry.identities([]), np.zeros(0, dtype=np.uint8), none, none, np.zeros((0, 5), dtype=np.int64))
+        return cls(
+            [], carry.identities([]), np.zeros(0, dtype=np.uint8), none, none, np.zeros((0, 5), dtype=np.int64), 0
+        )
 
     def _carry(self, records: list[RobotRecord], template: Callable[[RobotRecord], _Template]) -> _Carried:
         """The records this layout has (found by identity: both lists are alive, so an equal
@@ -178,7 +176,7 @@ class _Layout:
             buffer[dst : dst + size] = self.buffer[src : src + size]
         for k, raw in c.fresh.items():
             buffer[starts[k] : starts[k] + lengths[k]] = np.frombuffer(raw, dtype=np.uint8)
-        return _Layout(records, c.identities, buffer, starts, lengths, c.marks)
+        return _Layout(records, c.identities, buffer, starts, lengths, c.marks, len(buffer))
 
     def shared_successor(self, records: list[RobotRecord], template: Callable[[RobotRecord], _Template] = _template
                          ) -> _Layout:  # fmt: skip
@@ -282,17 +280,17 @@ class RobotListEncoder:
                 layout = self._layout = made(records, self._template)
                 if self._ready:
                     self._drop_laid_out(layout)
+        picked = None if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
         if self.native:
             assert _native is not None
-            picked = None if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
             prefix = head[:-1] + _array_header(n if picked is None else len(picked))
             contiguous = [np.ascontiguousarray(c, dtype=np.float64) for c in columns]
             out: bytearray = _native.pick(
                 prefix, layout.buffer, layout.starts, layout.lengths, layout.marks, picked, *contiguous
             )
             return out
-        if rows is not None:
-            return _picked(head[:-1], layout, np.asarray(rows, dtype=np.int64).reshape(-1), columns)
+        if picked is not None:
+            return _picked(head[:-1], layout, picked, columns)
         prefix = head[:-1] + _array_header(n)
         out = bytearray(prefix) + layout.buffer.data
         body = np.frombuffer(out, dtype=np.uint8, offset=len(prefix))
