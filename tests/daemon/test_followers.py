@@ -15,10 +15,12 @@ import threading
 from collections.abc import Callable
 
 import msgspec
+import pytest
 import zenoh
 
 from clients import FleetClient, wait_until
 from protocol import DeleteRequest, Keys, LaserScan, Odometry, SpawnRequest
+from simd.adapters.fleet import publisher as publisher_module
 from simd.adapters.fleet.publisher import FOLLOWED_PER_TICK
 from tests.conftest import Daemon
 from tests.daemon.test_fleet_topics import in_process_daemon
@@ -125,3 +127,47 @@ def test_a_tick_declares_at_most_so_many_followed_robots_the_rest_wait_their_tur
         pub._declare_followed()
         assert list(pub._followed["odom"]) == names[FOLLOWED_PER_TICK:]  # the first asked, first
         assert set(pub._odom_pub) == set(names[:FOLLOWED_PER_TICK])
+
+
+def test_publishers_come_one_a_tick_in_roster_order_and_each_robot_sends_its_own_messages(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """With no time to spare for declaring, a tick declares one publisher: odometry first, in
+    roster order, then scans; a followed robot's comes first. Only robots with a publisher send,
+    and what each sends is its own (a tick whose due scans are only partly declared encodes only
+    those: they must be the right rows), byte for byte what a get of its key answers."""
+    monkeypatch.setattr(publisher_module, "DECLARE_BUDGET_S", 0.0)
+    names = [f"r{i}" for i in range(12)]
+    with (
+        in_process_daemon(names, lockstep=True) as (engine, adapter, endpoint),
+        zenoh.open(client_config(endpoint)) as user,
+    ):
+        pub = adapter.publisher
+        heard: dict[str, dict[str, bytes]] = {"odom": {}, "scan": {}}
+        lock = threading.Lock()
+
+        def on(sample: zenoh.Sample) -> None:
+            _, ns, topic = str(sample.key_expr).split("/")
+            with lock:
+                heard[topic][ns] = sample.payload.to_bytes()
+
+        user.declare_subscriber("fleet/*/odom", on)
+        user.declare_subscriber("fleet/*/scan", on)
+        assert wait_until(lambda: bool(pub.odom_wanted) and bool(pub.scan_wanted), 3.0)
+        get(user, "fleet/r7/scan")  # followed: not the first of the robots scanning at its ticks
+        for _ in range(6):
+            engine.tick()
+        assert adapter.outbox.flush()
+        assert wait_until(lambda: len(heard["odom"]) == 6 and "r7" in heard["scan"], 3.0)
+        assert sorted(heard["odom"]) == sorted(names[:6]) and set(heard["scan"]) == {"r7"}  # none of the others
+        assert set(pub._odom_pub) == set(names[:6]) and set(pub._scan_pub) == {"r7"}
+        for _ in range(6 + 12):
+            engine.tick()
+        assert adapter.outbox.flush()
+        assert set(pub._odom_pub) == set(names)
+        assert 0 < len(pub._scan_pub) < len(names)  # scans are declared a few at a time too
+        assert wait_until(lambda: set(heard["scan"]) == set(pub._scan_pub), 3.0)
+        for topic in ("odom", "scan"):
+            for ns, data in heard[topic].items():
+                ok, _ = get(user, f"fleet/{ns}/{topic}")
+                assert ok == data, f"{ns}'s {topic} is not its own"

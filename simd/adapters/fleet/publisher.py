@@ -11,17 +11,18 @@ which is most of a tick's sending work when clients follow the fleet topics inst
 ``get P/<ns>/odom`` and ``get P/<ns>/scan`` are answered from the latest snapshot, encoded on
 request: the same bytes the topic carries. A get on a robot's exact key is also what a client
 starting to follow that robot sends (FleetClient.on_odom, fleet-teleop): its publisher is then
-declared by the next tick, ahead of the others (see ``Publisher._odom_put``).
+declared by the next tick, ahead of the others (see ``Publisher._robot_puts``).
 Everything but those answers runs on one thread at a time (the adapter's), in the engine's order.
 """
 
 from __future__ import annotations
 
+import collections
 import logging
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import msgspec
@@ -40,7 +41,7 @@ from simd.wire.scan_codec import ScanEncoder
 
 log = logging.getLogger(__name__)
 
-#: Wall time a tick may spend declaring per-robot publishers (see ``Publisher._odom_put``).
+#: Wall time a tick may spend declaring per-robot publishers (see ``Publisher._robot_puts``).
 DECLARE_BUDGET_S = 0.02
 #: Publishers of followed robots (asked for by their exact key) a tick declares before the others,
 #: whatever the budget: a handful of followers are served at once, thousands of asks cannot stall
@@ -73,13 +74,12 @@ class Publisher:
         self._odom_pub: dict[str, zenoh.Publisher] = {}
         self._scan_pub: dict[str, zenoh.Publisher] = {}
         self._tokens: dict[str, zenoh.LivelinessToken] = {}
-        # the put methods of the odometry publishers in the order of the last tick's namespaces:
-        # looked up once per fleet change instead of once per robot per tick
-        self._odom_puts: tuple[list[str], list[Any]] = ([], [])
+        # each topic's put of every robot of the last tick's roster, looked up once per fleet
+        # change instead of once per robot per tick, and the robots still without a publisher
+        self._puts = {"odom": RobotPuts(), "scan": RobotPuts()}
         self.odom_puts = 0  # per-robot odometry messages put (none while nobody subscribes)
         self._declared = 0  # publishers declared this tick
         self._declare_from = 0.0  # when this tick's first declaration started
-        self._odom_undeclared = False  # some robots' odometry is put on its key (not declared yet)
         # what get P/<ns>/odom and P/<ns>/scan answer from, read on zenoh's threads
         self._latest_lock = threading.Lock()
         self._latest_tick: TickSnapshot | None = None
@@ -141,7 +141,6 @@ class Publisher:
         puts it (declaring one costs ~15 ms among 20 000 robots' publishers)."""
         ns = state.namespace
         self._tokens[ns] = self.session.liveliness().declare_token(self.keys.alive(ns))
-        self._odom_puts = ([], [])
         first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
@@ -150,6 +149,7 @@ class Publisher:
             pub = self._odom_pub.get(ns)
             if pub is None:  # declared now, whatever the tick's budget: the spawn's reply follows this
                 pub = self._declare("odom", ns)
+                self._puts["odom"].stale = True
             pub.put(first)
             self.odom_puts += 1
             if self.odom_json_wanted:
@@ -164,33 +164,32 @@ class Publisher:
         self._declared += 1
         return True
 
-    def _odom_put(self, ns: str) -> Callable[[bytes], object]:
-        """How the robot's odometry is put: through its publisher, declared the first time
-        somebody subscribes to some robot's topics (thousands of publishers declared up front made
-        a daemon behind a router answer ever later, docs/scale-out.md, and nobody may ever
-        subscribe to them). Declaring 8 000 at once held the daemon for seconds, so each tick
-        declares them for at most ``DECLARE_BUDGET_S``; the robots still without one are not put
-        until then (their latest odometry is still answered on request). The spawn order alone made
-        a follower of the 20 000th robot wait minutes: robots asked for by their exact key are
-        declared first (:meth:`_declare_followed`). Never put on a key string
-        instead: zenoh matches such a key against every resource it knows at every put, and with
-        8 000 robots' tokens and a driver's 8 000 publishers that made a tick take seconds
-        (bench.overload)."""
-        pub = self._odom_pub.get(ns)
-        if pub is not None:
-            return pub.put
-        if not self._may_declare():
-            self._odom_undeclared = True
-            return _skip
-        return self._declare("odom", ns).put
-
-    def _scan_put(self, ns: str) -> Callable[[bytes], object]:
-        pub = self._scan_pub.get(ns)
-        if pub is not None:
-            return pub.put
-        if not self._may_declare():
-            return _skip
-        return self._declare("scan", ns).put
+    def _robot_puts(self, topic: str, namespaces: list[str]) -> RobotPuts:
+        """How this tick's messages of ``topic`` are put: through each robot's publisher,
+        declared the first time somebody subscribes to some robot's topics (thousands of
+        publishers declared up front made a daemon behind a router answer ever later,
+        docs/scale-out.md, and nobody may ever subscribe to them). Declaring 8 000 at once held
+        the daemon for seconds, so each tick declares them for at most ``DECLARE_BUDGET_S``, in
+        roster order; the robots still without one are neither encoded nor put until then
+        (their latest message is still answered on request), and a tick looks only at the next
+        of them, not at every robot (at 20 000 robots the publishers take hours to declare, and
+        a pass over the fleet every tick was a tenth of the daemon's Python time). The spawn
+        order alone made a follower of the 20 000th robot wait minutes: robots asked for by
+        their exact key are declared first (:meth:`_declare_followed`). Never put on a key
+        string instead: zenoh matches such a key against every resource it knows at every put,
+        and with 8 000 robots' tokens and a driver's 8 000 publishers that made a tick take
+        seconds (bench.overload)."""
+        table = self._puts[topic]
+        declared = self._odom_pub if topic == "odom" else self._scan_pub
+        if table.stale or namespaces != table.layout:  # cheap when equal: the simulation hands out the same list
+            table.lay_out(namespaces, declared, self._gone)
+        while table.waiting and self._may_declare():
+            ns = table.layout[table.waiting[0]]
+            if ns in self._gone:  # deleted after this tick was made: no publisher
+                table.waiting.popleft()
+                continue
+            table.declared(declared.get(ns) or self._declare(topic, ns))
+        return table
 
     def remove_robot(self, ns: str, at: tuple[int, int], publishers: bool = True) -> None:
         """Undeclare a deleted robot's token and publishers now (any thread: its delete is
@@ -212,11 +211,12 @@ class Publisher:
     def drop_publishers(self, ns: str) -> None:
         """Undeclare a deleted robot's publishers (:meth:`remove_robot` does; a delete answered
         at once does after its answer: the ticks leave the robot out from then on anyway)."""
-        for table in (self._odom_pub, self._scan_pub):
-            pub = table.pop(ns, None)
+        for declared in (self._odom_pub, self._scan_pub):
+            pub = declared.pop(ns, None)
             if pub is not None:
                 pub.undeclare()
-        self._odom_puts = ([], [])
+        for table in self._puts.values():
+            table.stale = True
 
     def forget(self, ns: str) -> None:
         """A deleted robot's encoder caches, after the ticks queued before its delete."""
@@ -244,21 +244,27 @@ class Publisher:
         if self._followed["odom"] or self._followed["scan"]:
             self._declare_followed()
         if self.odom_wanted or self.odom_json_wanted:
-            odom = self._odom.encode(
-                snap.namespaces, snap.time, snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z
-            )
-            self._put_odom(snap.namespaces, odom)
+            puts = self._robot_puts("odom", snap.namespaces)
+            mirrored = bool(self.odom_json_wanted)  # (the JSON mirror has every robot's)
+            if puts.ready or mirrored:
+                rows = None if mirrored or len(puts.ready) == len(puts.layout) else puts.ready
+                cols = (snap.x, snap.y, snap.yaw, snap.linear_x, snap.linear_y, snap.angular_z)
+                odom = self._odom.encode(snap.namespaces, snap.time, *cols, rows=rows)
+                _send(puts, range(len(odom)) if rows is None else rows, odom)
+                self.odom_puts += len(puts.ready)
+                if mirrored:
+                    self._mirror("odom", snap.namespaces, odom)
         if snap.scan_namespaces and (self.scan_wanted or self.scan_json_wanted):
-            scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
-            put, gone = self._scan_put, self._gone
-            for ns, data in zip(snap.scan_namespaces, scans, strict=True):
-                if ns not in gone:
-                    try:
-                        put(ns)(data)
-                    except zenoh.ZError:  # deleted meanwhile
-                        pass
-            if self.scan_json_wanted:
-                self._mirror("scan", snap.scan_namespaces, scans)
+            puts = self._robot_puts("scan", snap.scan_namespaces)
+            mirrored = bool(self.scan_json_wanted)
+            if mirrored or len(puts.ready) == len(puts.layout):
+                scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
+                _send(puts, range(len(scans)), scans)
+                if mirrored:
+                    self._mirror("scan", snap.scan_namespaces, scans)
+            elif puts.ready:  # only the robots with a publisher: a scan is ~1.5 kB to encode
+                rows, names = puts.ready, puts.layout
+                _send(puts, rows, self._scans.encode([names[i] for i in rows], snap.time, snap.scans[rows]))
         self._publish_fleet_topics(snap)
 
     def _declare_followed(self, most: int = FOLLOWED_PER_TICK) -> None:
@@ -280,6 +286,7 @@ class Publisher:
             table = self._odom_pub if topic == "odom" else self._scan_pub
             if ns not in table and ns in self._tokens and ns not in self._gone:  # (else declared meanwhile, or deleted)
                 self._declare(topic, ns)
+                self._puts[topic].stale = True
 
     def _declare(self, topic: str, ns: str) -> zenoh.Publisher:
         """Declare the robot's publisher of ``topic`` (``odom`` or ``scan``) and keep it. Scans
@@ -290,28 +297,11 @@ class Publisher:
             pub = self._odom_pub[ns] = self.session.declare_publisher(
                 self.keys.odom(ns), encoding="application/msgpack"
             )
-            self._odom_puts = ([], [])  # the tick's puts are looked up again, with this one
             return pub
         pub = self._scan_pub[ns] = self.session.declare_publisher(
             self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
         )
         return pub
-
-    def _put_odom(self, namespaces: list[str], odom: list[bytes]) -> None:
-        layout, puts = self._odom_puts
-        if namespaces != layout or self._odom_undeclared:  # cheap when equal: the simulation hands out the same list
-            self._odom_undeclared = False
-            gone = self._gone
-            puts = [_skip if ns in gone else self._odom_put(ns) for ns in namespaces]
-            self._odom_puts = (list(namespaces), puts)
-        for put, data in zip(puts, odom, strict=True):
-            try:
-                put(data)
-            except zenoh.ZError:  # a robot deleted meanwhile: its publisher is gone
-                pass
-        self.odom_puts += len(odom)
-        if self.odom_json_wanted:
-            self._mirror("odom", namespaces, odom)
 
     def _publish_fleet_topics(self, snap: TickSnapshot) -> None:
         """The tick as one message per topic, for whoever follows the whole fleet (if anyone).
@@ -421,4 +411,50 @@ class Publisher:
 
 
 def _skip(data: bytes) -> None:
-    """The put of a robot deleted after the tick being sent: nothing."""
+    """The put of a robot without a publisher (deleted after the tick being sent, or waiting for
+    its publisher): nothing."""
+
+
+class RobotPuts:
+    """One topic's put for every robot of a roster (its namespaces, in order): the rows whose
+    publisher is declared (``ready``) and those still waiting for one (``waiting``, in roster
+    order). A robot deleted after the tick being sent is in neither."""
+
+    def __init__(self) -> None:
+        self.layout: list[str] = []
+        self.puts: list[Callable[[bytes], object]] = []
+        self.ready: list[int] = []
+        self.waiting: collections.deque[int] = collections.deque()
+        #: a publisher was declared or undeclared outside this table: look them up again
+        self.stale = False
+
+    def lay_out(self, namespaces: list[str], declared: dict[str, zenoh.Publisher], gone: frozenset[str]) -> None:
+        self.stale = False  # (first: another thread may make it stale again meanwhile)
+        puts: list[Callable[[bytes], object]] = [_skip] * len(namespaces)
+        ready, waiting = [], []
+        for i, ns in enumerate(namespaces):
+            if ns in gone:
+                continue
+            pub = declared.get(ns)
+            if pub is None:
+                waiting.append(i)
+            else:
+                puts[i] = pub.put
+                ready.append(i)
+        self.layout, self.puts, self.ready, self.waiting = list(namespaces), puts, ready, collections.deque(waiting)
+
+    def declared(self, pub: zenoh.Publisher) -> None:
+        """The first waiting robot's publisher is declared: its messages are put from now on."""
+        i = self.waiting.popleft()
+        self.puts[i] = pub.put
+        self.ready.append(i)
+
+
+def _send(table: RobotPuts, rows: Iterable[int], payloads: list[bytes]) -> None:
+    """Put each payload through the publisher of its row (a waiting robot's put: nothing)."""
+    puts = table.puts
+    for i, data in zip(rows, payloads, strict=True):
+        try:
+            puts[i](data)
+        except zenoh.ZError:  # a robot deleted meanwhile: its publisher is gone
+            pass
