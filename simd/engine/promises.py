@@ -96,16 +96,19 @@ class Promises:
         added, removed = self.net()
         if not added and not removed:
             return roster
-        keep = np.fromiter((ns not in removed for ns in roster.namespaces), dtype=bool, count=len(roster.robots))
-        robots = [r for r, k in zip(roster.robots, keep.tolist(), strict=True) if k]
+        # the rows of the robots deleted, found in C (a pass of Python over 20 000 robots took
+        # ~5 ms of every list asked while a promise waited: issue 33)
+        rows = sorted(_rows_of(roster.namespaces, removed), reverse=True)
+        robots, names, namespaces = list(roster.robots), list(roster.names), list(roster.namespaces)
+        for row in rows:
+            del robots[row], names[row], namespaces[row]
         new = [p.state for p in added.values()]
         robots += [Robot(-1, s.name, s.namespace, s.model, s.spawn_pose, -1) for s in new]
         zeros = np.zeros(len(new))
 
         def column(values: np.ndarray, of_new: list[float] | np.ndarray) -> np.ndarray:
-            return np.concatenate([values[keep], np.asarray(of_new, dtype=np.float64)])
+            return np.concatenate([np.delete(values, rows), np.asarray(of_new, dtype=np.float64)])
 
-        kept = keep.tolist()
         return Roster(
             roster.time,
             robots,
@@ -115,8 +118,8 @@ class Promises:
             column(roster.linear, zeros),
             column(roster.angular, zeros),
             column(roster.lateral, zeros),
-            [n for n, k in zip(roster.names, kept, strict=True) if k] + [s.name for s in new],
-            [n for n, k in zip(roster.namespaces, kept, strict=True) if k] + [s.namespace for s in new],
+            names + [s.name for s in new],
+            namespaces + [s.namespace for s in new],
         )
 
     # -- promising ---------------------------------------------------------------------------
@@ -175,3 +178,14 @@ class Promises:
             math.hypot(p.state.x - x, p.state.y - y) >= model.radius + p.state.model.radius + MARGIN_M
             for p in added.values()
         )
+
+
+def _rows_of(namespaces: list[str], wanted: set[str]) -> list[int]:
+    """The rows of these namespaces (each searched for in C; one not there has none)."""
+    rows = []
+    for ns in wanted:
+        try:
+            rows.append(namespaces.index(ns))
+        except ValueError:
+            pass
+    return rows

@@ -50,6 +50,13 @@ def _wire(answer: object) -> object:
     return msgspec.msgpack.encode(convert.robot_record(answer, Keys()))
 
 
+def _listed(r: Roster) -> tuple[object, ...]:
+    """What a robot list says of a roster (names, spawn records' parts, pose and twist columns)."""
+    robots = [(robot.name, robot.namespace, robot.model.name, robot.spawn_pose) for robot in r.robots]
+    columns = [c.tolist() for c in (r.x, r.y, r.yaw, r.linear, r.angular, r.lateral)]
+    return r.names, r.namespaces, robots, columns
+
+
 def _fleet(e: Engine) -> list[tuple[str, str, str, float, float, float]]:
     return [(s.name, s.namespace, s.model.name, s.x, s.y, s.yaw) for s in e.sim.states()]
 
@@ -88,6 +95,7 @@ def test_every_answer_given_at_once_is_the_simulation_threads(requests: list[obj
         if answer is None:  # left to the simulation thread, after what was promised before it
             answer = _served(at_once, req)
         assert _wire(answer) == expected
+        assert _listed(at_once.roster_now()) == _listed(serial.roster_now())  # the list counts promises
     at_once.serve_pending()
     assert _fleet(at_once) == _fleet(serial)
     assert not at_once._promises and at_once._waiting == 0
