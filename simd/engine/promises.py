@@ -181,7 +181,10 @@ class Promises:
 
 
 def _rows_of(namespaces: list[str], wanted: set[str]) -> list[int]:
-    """The rows of these namespaces (each searched for in C; one not there has none)."""
+    """The rows of these namespaces (each searched for in C; one not there has none). Many of
+    them (a fleet being cleared) in one pass instead."""
+    if len(wanted) > 16:
+        return [row for row, ns in enumerate(namespaces) if ns in wanted]
     rows = []
     for ns in wanted:
         try:

@@ -19,7 +19,7 @@ from simd.core.snapshot import RobotState, TickSnapshot
 from simd.core.worldfile import load_world
 from simd.engine import Engine
 from simd.engine.ports import Deleted, Spawned
-from simd.engine.promises import MARGIN_M
+from simd.engine.promises import MARGIN_M, _rows_of
 from simd.engine.status import Roster
 from simd.wire import convert
 from tests.engine.test_at_once import Rushing, _run_until
@@ -234,3 +234,9 @@ def test_a_pause_and_resume_not_yet_served_do_not_hold_promises_back() -> None:
     assert isinstance(spawned, RobotState) and isinstance(deleted, RobotState) and deleted.name == "a"
     made = [(type(v).__name__, v.robot.name) for k, v in r.log if k == "event" and isinstance(v, (Spawned, Deleted))]
     assert made == [("Spawned", "a"), ("Deleted", "a")] and len(e.sim) == 0 and not e.paused
+
+
+def test_the_rows_of_the_robots_a_promise_deletes_are_found_however_many() -> None:
+    names = [f"r{i}" for i in range(100)]
+    for wanted in ({"r3", "r99", "zz"}, {f"r{i}" for i in range(0, 100, 3)} | {"zz"}):  # a few; many (one pass)
+        assert sorted(_rows_of(names, wanted)) == sorted(int(n[1:]) for n in wanted if n != "zz")

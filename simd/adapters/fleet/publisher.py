@@ -26,6 +26,8 @@ from collections.abc import Callable, Iterable
 from typing import Any
 
 import msgspec
+import numpy as np
+import numpy.typing as npt
 import zenoh
 
 from protocol.codec import encode, media_type
@@ -141,17 +143,16 @@ class Publisher:
         puts it (declaring one costs ~15 ms among 20 000 robots' publishers)."""
         ns = state.namespace
         self._tokens[ns] = self.session.liveliness().declare_token(self.keys.alive(ns))
+        self._stale()  # (a namespace spawned again may be in a roster equal to the last)
         first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
-        # (not _put_odom: a namespace deleted a moment ago is back)
         if put and (self.odom_wanted or self.odom_json_wanted):
-            pub = self._odom_pub.get(ns)
-            if pub is None:  # declared now, whatever the tick's budget: the spawn's reply follows this
-                pub = self._declare("odom", ns)
-                self._puts["odom"].stale = True
-            pub.put(first)
-            self.odom_puts += 1
+            # declared now, whatever the tick's budget: the spawn's reply follows this
+            pub = self._odom_pub.get(ns) or self._declare("odom", ns)
+            if pub is not None:
+                pub.put(first)
+                self.odom_puts += 1
             if self.odom_json_wanted:
                 self._mirror("odom", [ns], [first])
 
@@ -183,12 +184,18 @@ class Publisher:
         declared = self._odom_pub if topic == "odom" else self._scan_pub
         if table.stale or namespaces != table.layout:  # cheap when equal: the simulation hands out the same list
             table.lay_out(namespaces, declared, self._gone)
-        while table.waiting and self._may_declare():
+        while table.waiting:
             ns = table.layout[table.waiting[0]]
             if ns in self._gone:  # deleted after this tick was made: no publisher
                 table.waiting.popleft()
                 continue
-            table.declared(declared.get(ns) or self._declare(topic, ns))
+            if not self._may_declare():
+                break
+            pub = declared.get(ns) or self._declare(topic, ns)
+            if pub is None:  # deleted while it was being declared
+                table.waiting.popleft()
+                continue
+            table.declared(pub)
         return table
 
     def remove_robot(self, ns: str, at: tuple[int, int], publishers: bool = True) -> None:
@@ -215,6 +222,10 @@ class Publisher:
             pub = declared.pop(ns, None)
             if pub is not None:
                 pub.undeclare()
+        self._stale()
+
+    def _stale(self) -> None:
+        """The robots' publishers changed outside the tick's tables: they look them up again."""
         for table in self._puts.values():
             table.stale = True
 
@@ -236,7 +247,10 @@ class Publisher:
             if self._removed:  # deleted robots this tick (queued before the delete) still names
                 at = (snap.epoch, snap.tick)
                 self._removed = {ns: when for ns, when in self._removed.items() if at <= when}
-            gone = self._gone = frozenset(self._removed)
+            gone = frozenset(self._removed)
+            if gone != self._gone:  # a robot deleted (or no longer named): looked up again
+                self._stale()
+            self._gone = gone
             latest_scan = self._latest_scan
             for i, ns in enumerate(snap.scan_namespaces):
                 if ns not in gone:  # a deleted robot's scan, kept, would keep the whole snapshot for ever
@@ -255,16 +269,21 @@ class Publisher:
                 if mirrored:
                     self._mirror("odom", snap.namespaces, odom)
         if snap.scan_namespaces and (self.scan_wanted or self.scan_json_wanted):
-            puts = self._robot_puts("scan", snap.scan_namespaces)
+            # the table is the whole roster's, as odometry's (the robots scanning change from
+            # tick to tick: a table of theirs would be laid out again at every tick)
+            puts = self._robot_puts("scan", snap.namespaces)
+            due = _scan_rows(snap)
             mirrored = bool(self.scan_json_wanted)
-            if mirrored or len(puts.ready) == len(puts.layout):
+            ready = puts.ready_mask[due]
+            if mirrored or ready.all():
                 scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
-                _send(puts, range(len(scans)), scans)
+                _send(puts, due.tolist(), scans)
                 if mirrored:
                     self._mirror("scan", snap.scan_namespaces, scans)
-            elif puts.ready:  # only the robots with a publisher: a scan is ~1.5 kB to encode
-                rows, names = puts.ready, puts.layout
-                _send(puts, rows, self._scans.encode([names[i] for i in rows], snap.time, snap.scans[rows]))
+            elif ready.any():  # only the robots with a publisher: a scan is ~1.5 kB to encode
+                picked = np.flatnonzero(ready)
+                names = [snap.scan_namespaces[k] for k in picked.tolist()]
+                _send(puts, due[picked].tolist(), self._scans.encode(names, snap.time, snap.scans[picked]))
         self._publish_fleet_topics(snap)
 
     def _declare_followed(self, most: int = FOLLOWED_PER_TICK) -> None:
@@ -288,19 +307,26 @@ class Publisher:
                 self._declare(topic, ns)
                 self._puts[topic].stale = True
 
-    def _declare(self, topic: str, ns: str) -> zenoh.Publisher:
-        """Declare the robot's publisher of ``topic`` (``odom`` or ``scan``) and keep it. Scans
+    def _declare(self, topic: str, ns: str) -> zenoh.Publisher | None:
+        """Declare the robot's publisher of ``topic`` (``odom`` or ``scan``) and keep it; None
+        when the robot was deleted meanwhile (a delete answered at once, on a query's thread,
+        drops its publishers: one kept after that would never be undeclared). Scans
         travel at DATA_LOW: zenoh gives each priority its own transmit queue, so a tick's scans
         and its odometry each get a full queue, and odometry goes first when a link is
         congested (it is what closes a control loop)."""
         if topic == "odom":
-            pub = self._odom_pub[ns] = self.session.declare_publisher(
-                self.keys.odom(ns), encoding="application/msgpack"
+            table = self._odom_pub
+            pub = self.session.declare_publisher(self.keys.odom(ns), encoding="application/msgpack")
+        else:
+            table = self._scan_pub
+            pub = self.session.declare_publisher(
+                self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
             )
-            return pub
-        pub = self._scan_pub[ns] = self.session.declare_publisher(
-            self.keys.scan(ns), encoding="application/msgpack", priority=zenoh.Priority.DATA_LOW
-        )
+        table[ns] = pub
+        # kept first, then checked: a delete that pops the token after this finds it and drops it
+        if ns not in self._tokens and table.pop(ns, None) is pub:
+            pub.undeclare()
+            return None
         return pub
 
     def _publish_fleet_topics(self, snap: TickSnapshot) -> None:
@@ -417,13 +443,14 @@ def _skip(data: bytes) -> None:
 
 class RobotPuts:
     """One topic's put for every robot of a roster (its namespaces, in order): the rows whose
-    publisher is declared (``ready``) and those still waiting for one (``waiting``, in roster
-    order). A robot deleted after the tick being sent is in neither."""
+    publisher is declared (``ready``, and as a mask) and those still waiting for one
+    (``waiting``, in roster order). A robot deleted after the tick being sent is in neither."""
 
     def __init__(self) -> None:
         self.layout: list[str] = []
         self.puts: list[Callable[[bytes], object]] = []
         self.ready: list[int] = []
+        self.ready_mask = np.zeros(0, dtype=bool)
         self.waiting: collections.deque[int] = collections.deque()
         #: a publisher was declared or undeclared outside this table: look them up again
         self.stale = False
@@ -441,13 +468,26 @@ class RobotPuts:
             else:
                 puts[i] = pub.put
                 ready.append(i)
-        self.layout, self.puts, self.ready, self.waiting = list(namespaces), puts, ready, collections.deque(waiting)
+        mask = np.zeros(len(namespaces), dtype=bool)
+        mask[ready] = True
+        self.layout, self.puts, self.ready, self.ready_mask = list(namespaces), puts, ready, mask
+        self.waiting = collections.deque(waiting)
 
     def declared(self, pub: zenoh.Publisher) -> None:
         """The first waiting robot's publisher is declared: its messages are put from now on."""
         i = self.waiting.popleft()
         self.puts[i] = pub.put
         self.ready.append(i)
+        self.ready_mask[i] = True
+
+
+def _scan_rows(snap: TickSnapshot) -> npt.NDArray[np.int64]:
+    """The rows of ``snap.namespaces`` whose scans the tick has (the simulation says; a snapshot
+    made otherwise, by its namespaces)."""
+    if len(snap.scan_index) == len(snap.scan_namespaces):
+        return snap.scan_index
+    row = {ns: i for i, ns in enumerate(snap.namespaces)}
+    return np.asarray([row[ns] for ns in snap.scan_namespaces], dtype=np.int64)
 
 
 def _send(table: RobotPuts, rows: Iterable[int], payloads: list[bytes]) -> None:
