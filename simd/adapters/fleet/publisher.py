@@ -143,7 +143,7 @@ class Publisher:
         puts it (declaring one costs ~15 ms among 20 000 robots' publishers)."""
         ns = state.namespace
         self._tokens[ns] = self.session.liveliness().declare_token(self.keys.alive(ns))
-        self._stale()  # (a namespace spawned again may be in a roster equal to the last)
+        self._stale(ns)  # (a namespace spawned again may be in a roster equal to the last)
         first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
@@ -222,12 +222,14 @@ class Publisher:
             pub = declared.pop(ns, None)
             if pub is not None:
                 pub.undeclare()
-        self._stale()
+        self._stale(ns)
 
-    def _stale(self) -> None:
-        """The robots' publishers changed outside the tick's tables: they look them up again."""
+    def _stale(self, ns: str) -> None:
+        """The robot's publishers changed outside the tick's tables: those that have it look
+        them up again (a table has to be laid out again only for a robot it has)."""
         for table in self._puts.values():
-            table.stale = True
+            if ns in table.row_of:
+                table.stale = True
 
     def forget(self, ns: str) -> None:
         """A deleted robot's encoder caches, after the ticks queued before its delete."""
@@ -248,8 +250,8 @@ class Publisher:
                 at = (snap.epoch, snap.tick)
                 self._removed = {ns: when for ns, when in self._removed.items() if at <= when}
             gone = frozenset(self._removed)
-            if gone != self._gone:  # a robot deleted (or no longer named): looked up again
-                self._stale()
+            for ns in gone ^ self._gone:  # a robot deleted (or no longer named): looked up again
+                self._stale(ns)
             self._gone = gone
             latest_scan = self._latest_scan
             for i, ns in enumerate(snap.scan_namespaces):
@@ -305,7 +307,7 @@ class Publisher:
             table = self._odom_pub if topic == "odom" else self._scan_pub
             if ns not in table and ns in self._tokens and ns not in self._gone:  # (else declared meanwhile, or deleted)
                 self._declare(topic, ns)
-                self._puts[topic].stale = True
+                self._stale(ns)
 
     def _declare(self, topic: str, ns: str) -> zenoh.Publisher | None:
         """Declare the robot's publisher of ``topic`` (``odom`` or ``scan``) and keep it; None
@@ -452,6 +454,7 @@ class RobotPuts:
         self.ready: list[int] = []
         self.ready_mask = np.zeros(0, dtype=bool)
         self.waiting: collections.deque[int] = collections.deque()
+        self.row_of: dict[str, int] = {}  # (read on other threads: replaced, never changed)
         #: a publisher was declared or undeclared outside this table: look them up again
         self.stale = False
 
@@ -472,6 +475,7 @@ class RobotPuts:
         mask[ready] = True
         self.layout, self.puts, self.ready, self.ready_mask = list(namespaces), puts, ready, mask
         self.waiting = collections.deque(waiting)
+        self.row_of = dict(zip(namespaces, range(len(namespaces)), strict=True))
 
     def declared(self, pub: zenoh.Publisher) -> None:
         """The first waiting robot's publisher is declared: its messages are put from now on."""
