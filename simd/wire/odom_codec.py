@@ -137,6 +137,7 @@ class OdometryEncoder:
         vx: F64,
         vy: F64,
         wz: F64,
+        *,
         rows: Sequence[int] | None = None,
     ) -> list[bytes]:
         """MessagePack ``Odometry`` per robot, byte-identical to encoding the struct; with
