@@ -43,3 +43,24 @@ def runs(source: npt.NDArray[np.int64]) -> list[tuple[int, int, int]]:
     last[:-1] &= ~follows[1:]
     firsts, lasts = np.flatnonzero(found & ~follows), np.flatnonzero(last)
     return list(zip(firsts.tolist(), (lasts - firsts + 1).tolist(), source[firsts].tolist(), strict=True))
+
+
+#: Room kept after the records of a buffer that layouts carried over fleet changes share, as a
+#: share of the records' bytes (and at least ``MIN_SPARE`` bytes): a spawned robot's record is
+#: written there instead of into a new copy of the whole fleet's bytes (simd/wire/list_codec.py,
+#: simd/wire/odom_codec.py).
+SPARE = 0.25
+MIN_SPARE = 64 * 1024
+
+
+def room_for(live: int) -> int:
+    """The size of a new shared buffer for ``live`` bytes of records: them and the room after."""
+    return live + max(int(live * SPARE), MIN_SPARE)
+
+
+def copy_needed(used: int, need: int, size: int, kept: int) -> bool:
+    """Whether a shared buffer of ``size`` bytes, ``used`` of them written, must be copied into a
+    new one for a layout that keeps ``kept`` bytes of its records and adds ``need``: when the new
+    ones do not fit, or when most of what it holds is the records of robots gone (a fleet that
+    shrank would otherwise keep the bytes of its biggest size)."""
+    return used + need > size or 2 * kept < used

@@ -26,7 +26,7 @@ new to it are encoded. The numpy path copies the kept records into a new buffer 
 by slice (a change of a few robots in 20 000: ~2 ms, where laying every record out again in a
 Python loop took ~40). The compiled packer's layouts share one buffer instead: the kept records
 stay where they are, a new one is written after the last, and only when the buffer's room
-(``SPARE``) is used up are the records copied into a new one. A list right after a change at
+(``carry.SPARE``) is used up are the records copied into a new one. A list right after a change at
 20 000 robots then takes 3.8-4.0 ms of CPU instead of 4.6-4.8, and the worst of 20 such lists
 5-10 ms instead of 7-38 (a fresh 16 MB buffer is faulted in page by page): ``python -m
 bench.fleet_change --robots 20000 --rounds 20``, three alternating pairs.
@@ -82,13 +82,6 @@ def _array_header(n: int) -> bytes:
     if n < 1 << 16:
         return b"\xdc" + n.to_bytes(2, "big")
     return b"\xdd" + n.to_bytes(4, "big")
-
-
-#: Room kept after the records in a buffer that the compiled packer's layouts share, as a share
-#: of the records' bytes (and at least ``MIN_SPARE`` bytes): a spawned robot's record is written
-#: there instead of into a new copy of the whole fleet's bytes.
-SPARE = 0.25
-MIN_SPARE = 64 * 1024
 
 
 @dataclass(eq=False)
@@ -183,7 +176,7 @@ class _Layout:
         """The layout of ``records`` for the compiled packer: the records this one has stay
         where they are in its buffer, the others are written into it past ``used``; only when
         they do not fit, or the records kept are less than half of what the buffer holds, are
-        the records copied into a new buffer (in order, with ``SPARE`` room after them). A spawn
+        the records copied into a new buffer (in order, with room after them: ``carry.room_for``). A spawn
         or a delete among 20 000 robots then copies no 16 MB."""
         assert _native is not None
         c = self._carry(records, template)
@@ -193,15 +186,12 @@ class _Layout:
         need = sum(len(raw) for raw in c.fresh.values())
         buffer, used = self.buffer, self.used
         kept_bytes = int(c.lengths[found].sum())
-        # copied, in order, into a new buffer with room after them: when the new ones do not fit,
-        # or when most of what the buffer holds is the records of robots gone (a fleet that
-        # shrank would otherwise keep the bytes of its biggest size)
-        if used + need > len(buffer) or 2 * kept_bytes < used:
+        if carry.copy_needed(used, need, len(buffer), kept_bytes):  # copied, in order, into a new buffer
             kept = c.source[found]
             zeros = np.zeros(len(self.starts))  # (the numbers are written by every list anyway)
             packed = _native.pick(b"", self.buffer, self.starts, self.lengths, self.marks, kept, *[zeros] * 5)
             live = len(packed) + need
-            buffer = np.empty(live + max(int(live * SPARE), MIN_SPARE), dtype=np.uint8)
+            buffer = np.empty(carry.room_for(live), dtype=np.uint8)
             buffer[: len(packed)] = np.frombuffer(packed, dtype=np.uint8)
             kept_starts = np.zeros(len(kept), dtype=np.int64)
             np.cumsum(c.lengths[found][:-1], out=kept_starts[1:])

@@ -36,8 +36,6 @@ _native, _why = _fast.load("odompack")  # None without a C compiler: the numpy p
 _SENTINELS = tuple(-1.2345678912345e-301 * (k + 1) for k in range(7))
 _ZERO_STAMP = msgspec.msgpack.encode(Time())
 _encoder = msgspec.msgpack.Encoder()
-#: The least room a new buffer of tails gets (a small fleet's spawns need no copies).
-MIN_ROOM = 64 * 1024
 
 
 class _Template:
@@ -67,11 +65,13 @@ class OdometryEncoder:
     The robots' tails lie in one buffer that outlives fleet changes: a spawned robot's tail is
     written after the others, a deleted one's is left where it was, and each robot's row says
     where its own is (``bounds``, ``offsets``). After a spawn or a delete the rows are carried
-    over from the last layout by the namespaces' identities (simd/core/carry.py), in numpy,
-    instead of a Python pass over the fleet that copied its ~20 MB of tails (at 20 000 robots
+    over from the last layout by the namespaces' identities (simd/core/carry.py), in numpy
+    (only the heads are listed again in Python), instead of a pass over the fleet that laid
+    out and copied its ~20 MB of tails (at 20 000 robots
     that was ~9 % of the daemon's Python time under ``bench.overload``, which spawns and
     deletes a robot a round). The tails are copied into a new buffer only when its room runs
-    out or when less than half of it is tails still in use.
+    out or when less than half of it is tails still in use (``carry.copy_needed``, as the robot
+    list's records).
     """
 
     def __init__(self, native: bool | None = None) -> None:
@@ -114,7 +114,7 @@ class OdometryEncoder:
         need = sum(len(t.tail) for _, t in fresh)
         kept = int((bounds[found, 1] - bounds[found, 0]).sum())
         buffer, used = self._buffer, self._used
-        if used + need > len(buffer) or 2 * kept < used:  # no room, or mostly the tails of robots gone
+        if carry.copy_needed(used, need, len(buffer), kept):
             buffer = _compact(buffer, bounds, offsets, found, kept + need)
             used = kept
         for k, t in fresh:
@@ -172,15 +172,15 @@ def _compact(
     found: npt.NDArray[np.bool_], need: int,
 ) -> npt.NDArray[np.uint8]:  # fmt: skip
     """A new buffer with the ``found`` rows' tails in row order at its start and room after them
-    (at least ``need`` bytes in all, a quarter more to spare); those rows' ``bounds`` and
-    ``offsets`` are moved with them, in place."""
+    (``carry.room_for`` of ``need`` bytes); those rows' ``bounds`` and ``offsets`` are moved with
+    them, in place."""
     rows = np.flatnonzero(found)
     starts, ends = bounds[rows, 0], bounds[rows, 1]
     sizes = ends - starts
     new_starts = np.zeros(len(rows), dtype=np.int64)
     np.cumsum(sizes[:-1], out=new_starts[1:])
     total = int(sizes.sum())
-    out = np.empty(max(need + need // 4, MIN_ROOM), dtype=np.uint8)
+    out = np.empty(carry.room_for(need), dtype=np.uint8)
     # every kept byte's place in the old buffer, row after row, in one gather
     out[:total] = buffer[np.repeat(starts - new_starts, sizes) + np.arange(total, dtype=np.int64)]
     shift = new_starts - starts

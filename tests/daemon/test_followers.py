@@ -197,8 +197,9 @@ def _state(name: str) -> RobotState:
 
 @contextmanager
 def _publisher() -> Iterator[tuple[Publisher, Callable[[str, str], set[int]]]]:
-    """The daemon's publisher on a session of its own, a user subscribed to every robot's topics,
-    and what the user heard: the ticks of a robot's topic."""
+    """The daemon's publisher on a session of its own with robots ``a`` and ``b``, a user
+    subscribed to every robot's topics who has heard both at tick 1, and what the user heard:
+    the ticks of a robot's topic."""
     port = free_port()
     conf = zenoh.Config()
     conf.insert_json5("listen/endpoints", f'["tcp/127.0.0.1:{port}"]')
@@ -227,6 +228,10 @@ def _publisher() -> Iterator[tuple[Publisher, Callable[[str, str], set[int]]]]:
             user.declare_subscriber("fleet/*/odom", on)
             user.declare_subscriber("fleet/*/scan", on)
             assert wait_until(lambda: bool(pub.odom_wanted) and bool(pub.scan_wanted), 3.0)
+            for ns in ("a", "b"):
+                pub.add_robot(_state(ns), 0.0)
+            pub.publish_tick(_tick(1, ["a", "b"]))
+            assert wait_until(lambda: all(1 in ticks(ns, t) for ns in "ab" for t in ("odom", "scan")), 3.0)
             yield pub, ticks
         finally:
             pub.close()
@@ -235,10 +240,6 @@ def _publisher() -> Iterator[tuple[Publisher, Callable[[str, str], set[int]]]]:
 def test_a_robot_deleted_at_once_is_not_sent_by_the_ticks_before_its_delete_nor_after() -> None:
     names = ["a", "b"]
     with _publisher() as (pub, ticks):
-        for ns in names:
-            pub.add_robot(_state(ns), 0.0)
-        pub.publish_tick(_tick(1, names))
-        assert wait_until(lambda: 1 in ticks("b", "scan") and 1 in ticks("b", "odom"), 3.0)
         pub.remove_robot("b", (0, 2), publishers=False)  # answered at once while tick 2 was computed
         pub.publish_tick(_tick(2, names))  # tick 2 still names b (its publishers not yet dropped)
         pub.drop_publishers("b")
@@ -253,10 +254,6 @@ def test_a_robot_deleted_and_spawned_again_under_its_name_is_heard_again(at_once
     under its name: the next roster equals the last one, and the robot is sent all the same."""
     names = ["a", "b"]
     with _publisher() as (pub, ticks):
-        for ns in names:
-            pub.add_robot(_state(ns), 0.0)
-        pub.publish_tick(_tick(1, names))
-        assert wait_until(lambda: 1 in ticks("b", "scan") and 1 in ticks("b", "odom"), 3.0)
         pub.remove_robot("b", (0, 2), publishers=not at_once)
         pub.publish_tick(_tick(2, names))
         if at_once:
@@ -276,7 +273,6 @@ def test_a_publisher_declared_while_its_robot_is_deleted_is_not_kept() -> None:
     """The outbox declares a robot's publisher (~15 ms among 20 000) while a query's thread
     answers its delete and drops its publishers: the one declared then is not kept."""
     with _publisher() as (pub, _):
-        pub.add_robot(_state("a"), 0.0, put=False)
-        pub.remove_robot("a", (0, 1))  # token and publishers gone, as a delete on another thread
-        assert pub._declare("odom", "a") is None  # the declaring thread comes back after that
-        assert "a" not in pub._odom_pub
+        pub.remove_robot("b", (0, 1))  # token and publishers gone, as a delete on another thread
+        assert pub._declare("odom", "b") is None  # the declaring thread comes back after that
+        assert "b" not in pub._odom_pub

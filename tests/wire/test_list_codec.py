@@ -15,6 +15,7 @@ from hypothesis import strategies as st
 from protocol.control import Pose2D, RobotList, RobotRecord
 from protocol.keys import Keys
 from protocol.messages import Time
+from simd.core import carry
 from simd.core.models import MODELS
 from simd.core.snapshot import RobotState
 from simd.wire import list_codec
@@ -88,7 +89,7 @@ _CHANGES = st.one_of(
 
 #: the compiled packer's shared buffer: with its usual room, and with none (every spawn then
 #: copies the records into a new buffer; the numpy path has no room either way)
-ROOM = [pytest.param((list_codec.SPARE, list_codec.MIN_SPARE), id="room"), pytest.param((0.0, 0), id="no-room")]
+ROOM = [pytest.param((carry.SPARE, carry.MIN_SPARE), id="room"), pytest.param((0.0, 0), id="no-room")]
 
 
 @pytest.mark.parametrize("room", ROOM)
@@ -99,8 +100,8 @@ def test_every_list_after_spawns_deletes_and_replaced_records_is_the_structs_enc
     start: int, changes: list[list[tuple[str, int]]], seed: int, native: bool, room: tuple[float, int]
 ) -> None:
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(list_codec, "SPARE", room[0])
-        mp.setattr(list_codec, "MIN_SPARE", room[1])
+        mp.setattr(carry, "SPARE", room[0])
+        mp.setattr(carry, "MIN_SPARE", room[1])
         _lists_after_changes(start, changes, seed, native)
 
 
@@ -244,7 +245,7 @@ def test_the_compiled_packers_layouts_share_a_buffer_until_it_is_full() -> None:
     first = enc._layout
     first_bytes = first.buffer[: first.used].tobytes()
     room = len(first.buffer) - first.used
-    assert room >= list_codec.MIN_SPARE
+    assert room >= carry.MIN_SPARE
     spawned = [*records, *_records(1, start=500)]
     cols = [np.arange(31.0) * 2 for _ in range(5)]
     assert enc.encode(2.0, spawned, *cols) == _expected(2.0, spawned, cols)
@@ -265,7 +266,7 @@ def test_the_compiled_packers_layouts_share_a_buffer_until_it_is_full() -> None:
         assert enc.encode(4.0, grown, *cols) == _expected(4.0, grown, cols)
     fresh = enc._layout
     assert fresh.starts[0] == 0 and np.all(fresh.starts[1:] == np.cumsum(fresh.lengths)[:-1])
-    assert len(fresh.buffer) - fresh.used >= list_codec.MIN_SPARE
+    assert len(fresh.buffer) - fresh.used >= carry.MIN_SPARE
 
 
 @needs_listpack

@@ -27,7 +27,6 @@ from typing import Any
 
 import msgspec
 import numpy as np
-import numpy.typing as npt
 import zenoh
 
 from protocol.codec import encode, media_type
@@ -143,7 +142,6 @@ class Publisher:
         puts it (declaring one costs ~15 ms among 20 000 robots' publishers)."""
         ns = state.namespace
         self._tokens[ns] = self.session.liveliness().declare_token(self.keys.alive(ns))
-        self._stale(ns)  # (a namespace spawned again may be in a roster equal to the last)
         first = encode(convert.odometry(ns, Time.from_seconds(time), *state.odom_pose, 0.0, 0.0, 0.0))
         with self._latest_lock:
             self._first_odom[ns] = first
@@ -274,7 +272,7 @@ class Publisher:
             # the table is the whole roster's, as odometry's (the robots scanning change from
             # tick to tick: a table of theirs would be laid out again at every tick)
             puts = self._robot_puts("scan", snap.namespaces)
-            due = _scan_rows(snap)
+            due = snap.scan_index
             mirrored = bool(self.scan_json_wanted)
             ready = puts.ready_mask[due]
             if mirrored or ready.all():
@@ -483,15 +481,6 @@ class RobotPuts:
         self.puts[i] = pub.put
         self.ready.append(i)
         self.ready_mask[i] = True
-
-
-def _scan_rows(snap: TickSnapshot) -> npt.NDArray[np.int64]:
-    """The rows of ``snap.namespaces`` whose scans the tick has (the simulation says; a snapshot
-    made otherwise, by its namespaces)."""
-    if len(snap.scan_index) == len(snap.scan_namespaces):
-        return snap.scan_index
-    row = {ns: i for i, ns in enumerate(snap.namespaces)}
-    return np.asarray([row[ns] for ns in snap.scan_namespaces], dtype=np.int64)
 
 
 def _send(table: RobotPuts, rows: Iterable[int], payloads: list[bytes]) -> None:
