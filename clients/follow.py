@@ -3,7 +3,7 @@
 Messages arrive on zenoh's threads into a queue; this loop hands them, in order, to one handler
 on the main thread, shows a progress line (rewritten every second on a terminal, a new line
 every five seconds otherwise, e.g. in a log), and ends at Ctrl-C, SIGTERM or a wall-clock
-duration.
+duration. With :class:`UpToStop`, what the fleet sent before that moment is still taken in.
 """
 
 from __future__ import annotations
@@ -15,9 +15,88 @@ import threading
 import time
 from collections.abc import Callable
 from types import FrameType
-from typing import TypeVar
+from typing import Any, TypeVar
+
+from protocol import FleetError
+from protocol.messages import FleetOdometry, FleetScans, Time
 
 T = TypeVar("T")
+
+#: after a stop, the longest a follower waits for messages that were sent before it (wall s)
+CATCH_UP_S = 5.0
+#: once the stop's tick of odometry has come, this long without a message means nothing more is
+#: on its way (a lockstep or paused daemon sends nothing after its last tick)
+QUIET_S = 0.3
+#: ... and this long before it has come (a fleet with no robot sends no odometry at all)
+QUIET_NO_ODOMETRY_S = 1.0
+
+
+class UpToStop:
+    """Ctrl-C keeps what the fleet sent until that moment, however far behind the follower is.
+
+    At the stop, the daemon's clock is the limit: messages stamped up to it that are still on
+    their way are waited for, and later ones left out. Zenoh sends a tick's odometry before its
+    scans, and the scans at a lower priority, so under load scans trail the odometry: a mapper
+    busy matching scans that stopped when asked lost the last third of its loop. Done when the
+    odometry of the limit's tick and a scan stamped after it have come (scans come in order:
+    none older is still on the way), when nothing has come for a while (``QUIET_S``), or after
+    ``CATCH_UP_S``.
+    """
+
+    def __init__(self, clock: Callable[[], Time], odometry: bool = True, scans: bool = True) -> None:
+        self._clock = clock
+        self._odometry, self._scans = odometry, scans
+        self.limit: tuple[int, int] | None = None
+        self.newest_odometry: tuple[int, int] = (-1, 0)
+        self.newest_scans: tuple[int, int] = (-1, 0)
+        self.left_out = 0  # messages stamped after the limit
+
+    def keep(self, msg: Any) -> bool:
+        """Notes ``msg``'s stamp; whether to take it (not when stamped after the limit)."""
+        if isinstance(msg, FleetOdometry):
+            stamp = (msg.stamp.sec, msg.stamp.nanosec)
+            self.newest_odometry = max(self.newest_odometry, stamp)
+        elif isinstance(msg, FleetScans):
+            stamp = (msg.stamp.sec, msg.stamp.nanosec)
+            self.newest_scans = max(self.newest_scans, stamp)
+        else:
+            return True
+        if self.limit is not None and stamp > self.limit:
+            self.left_out += 1
+            return False
+        return True
+
+    def odometry_in(self) -> bool:
+        assert self.limit is not None
+        return not self._odometry or self.newest_odometry >= self.limit
+
+    def complete(self) -> bool:
+        return self.odometry_in() and (not self._scans or self.newest_scans > (self.limit or (0, 0)))
+
+    def catch_up(self, inbox: queue.Queue[T], handle: Callable[[T], None]) -> None:
+        """Take what comes up to the daemon's clock now (nothing more when no daemon answers)."""
+        try:
+            now = self._clock()
+        except FleetError:
+            return
+        self.limit = (now.sec, now.nanosec)
+        start = last = time.monotonic()
+        handling = 0.0  # the follower's own work does not count against the wait
+        while not self.complete():
+            t = time.monotonic()
+            if t - start - handling >= CATCH_UP_S:
+                return
+            if t - last >= (QUIET_S if self.odometry_in() else QUIET_NO_ODOMETRY_S):
+                return
+            try:
+                msg = inbox.get(timeout=0.05)
+            except queue.Empty:
+                continue
+            got = time.monotonic()
+            if self.keep(msg):
+                handle(msg)
+            last = time.monotonic()
+            handling += last - got
 
 
 def stop_on_signals() -> threading.Event:
@@ -39,9 +118,12 @@ def follow(
     duration: float,
     progress: Callable[[float], str],
     every_loop: Callable[[], None] | None = None,
+    up_to_stop: UpToStop | None = None,
 ) -> float:
     """Handle messages until ``stop`` or ``duration`` wall seconds (0: no limit); returns the time
-    taken. ``every_loop`` runs at least ten times a second (a controller's hook)."""
+    taken. ``every_loop`` runs at least ten times a second (a controller's hook). With
+    ``up_to_stop``, the messages the fleet sent before the end are waited for and handled too."""
+    keep = up_to_stop.keep if up_to_stop is not None else None
     t0 = time.monotonic()
     tty = sys.stderr.isatty()
     every = 1.0 if tty else 5.0
@@ -51,9 +133,12 @@ def follow(
         if duration and now - t0 >= duration:
             break
         try:
-            handle(inbox.get(timeout=0.1))
+            msg = inbox.get(timeout=0.1)
         except queue.Empty:
             pass
+        else:
+            if keep is None or keep(msg):
+                handle(msg)
         if every_loop is not None:
             every_loop()
         if now >= next_report:
@@ -62,13 +147,17 @@ def follow(
             next_report = now + every
     if tty:
         print(file=sys.stderr)
+    if up_to_stop is not None:
+        up_to_stop.catch_up(inbox, handle)
     return time.monotonic() - t0
 
 
-def drain(inbox: queue.Queue[T], handle: Callable[[T], None]) -> None:
-    """Handle what arrived before the input was closed."""
+def drain(inbox: queue.Queue[T], handle: Callable[[T], None], up_to_stop: UpToStop | None = None) -> None:
+    """Handle what arrived before the input was closed (up to the stop's limit, if any)."""
     while True:
         try:
-            handle(inbox.get_nowait())
+            msg = inbox.get_nowait()
         except queue.Empty:
             return
+        if up_to_stop is None or up_to_stop.keep(msg):
+            handle(msg)

@@ -30,7 +30,7 @@ import numpy as np
 
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
-from clients.follow import drain, follow, stop_on_signals
+from clients.follow import UpToStop, drain, follow, stop_on_signals
 from clients.mapping.explore import Explorer
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
@@ -307,6 +307,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
           file=sys.stderr, flush=True)  # fmt: skip
     coverage: list[tuple[float, float]] = []
+    up_to_stop = UpToStop(lambda: client.clock().clock)
     try:
         if plan.explore:
             names = sorted(plan.robots or robots)
@@ -314,14 +315,15 @@ def main(argv: list[str] | None = None) -> int:
             if client.clock().paused:
                 drive.lockstep(inbox, plan.explore_limit, plan.duration, lambda t: progress_line(mapper, t))
             else:
-                follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), drive.realtime)
+                follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), drive.realtime,
+                       up_to_stop)  # fmt: skip
                 for ns in names:
                     client.stop(ns)
         else:
-            follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t))
+            follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), None, up_to_stop)
     finally:
         client.close()
-        drain(inbox, mapper.take)
+        drain(inbox, mapper.take, up_to_stop)
     occupancy = grid.occupancy()
     try:
         pgm, meta = write_map(plan.stem, occupancy, force=plan.force)
@@ -334,6 +336,9 @@ def main(argv: list[str] | None = None) -> int:
     if (back := mapper.backend) is not None:
         print(f"fleet-map: loop closure: keyframes {len(back.keyframes)}, closures {back.closures}, "
               f"optimisations {back.optimisations}, redraws {back.redraws}", flush=True)  # fmt: skip
+    if mapper.unpaired:
+        print(f"fleet-map: {mapper.unpaired} scans came without their tick's odometry (lost on the way) "
+              "and are not in the map", file=sys.stderr, flush=True)  # fmt: skip
     if coverage:
         steps = coverage[:: max(1, len(coverage) // 8)] + coverage[-1:]
         print("fleet-map: explored over sim time: " + ", ".join(f"{t:.0f} s {a:.1f} m²" for t, a in steps), flush=True)

@@ -1,7 +1,10 @@
 """Scans and odometry of the fleet topics into a grid: each scan at its robot's pose of the same tick.
 
 The fleet topics carry a tick's odometry and its scans as two messages, which may arrive in
-either order; a scan waits for its tick's odometry (a few ticks of odometry are kept). The scan
+either order: a scan waits for its tick's odometry, and the odometry of the last ``ODOM_KEPT_S``
+of simulated time is kept for scans that come after it (zenoh sends scans at a lower priority
+than odometry, so under load they trail it by a second or more). A scan whose odometry never
+comes (lost on the way, or older than what is kept) is counted in ``unpaired``. The scan
 is placed at the robot's pose plus the lidar's mounting offset of its model
 (protocol/frames.py). With ``matching``, each scan's pose is first corrected against the map
 (match.py) and, with ``loops`` (the default), handed to the back end (backend.py), which keeps
@@ -23,8 +26,25 @@ from clients.mapping.posegraph import compose
 from protocol.frames import SCAN_OFFSET
 from protocol.messages import FleetOdometry, FleetScans
 
-#: ticks of odometry kept to pair with scans that arrive first
-ODOM_KEPT = 30
+#: simulated seconds of odometry kept to pair with scans that come after it
+ODOM_KEPT_S = 10.0
+#: scans kept waiting for their tick's odometry
+WAITING_KEPT = 64
+
+
+class TickPoses:
+    """One tick's odometry as it came (columns, not a tuple per robot: a viewer's mapper keeps
+    ten seconds of a thousand robots); ``rows`` is shared by the ticks of one roster."""
+
+    __slots__ = ("rows", "x", "y", "yaw")
+
+    def __init__(self, rows: dict[str, int], msg: FleetOdometry) -> None:
+        self.rows = rows
+        self.x, self.y, self.yaw = msg.array("x"), msg.array("y"), msg.array("yaw")
+
+    def get(self, ns: str) -> tuple[float, float, float] | None:
+        i = self.rows.get(ns)
+        return None if i is None else (float(self.x[i]), float(self.y[i]), float(self.yaw[i]))
 
 
 @dataclass
@@ -34,8 +54,12 @@ class Mapper:
     grid: LogOddsGrid
     robots: set[str] | None
     models: dict[str, str]
-    poses: dict[tuple[int, int], dict[str, tuple[float, float, float]]] = field(default_factory=dict)
+    #: each kept tick's odometry by stamp, oldest first
+    poses: dict[tuple[int, int], TickPoses] = field(default_factory=dict)
     waiting: list[FleetScans] = field(default_factory=list)
+    #: scans dropped because their tick's odometry did not come (or came too long before them)
+    unpaired: int = 0
+    _roster: tuple[list[str], dict[str, int]] = field(default_factory=lambda: ([], {}))
     paths: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     beams: Beams | None = None
     latest: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # each robot's newest pose
@@ -74,34 +98,43 @@ class Mapper:
 
     def on_odometry(self, msg: FleetOdometry) -> None:
         x, y, yaw = msg.array("x"), msg.array("y"), msg.array("yaw")
-        tick = {}
         for i, ns in enumerate(msg.namespaces):
             if self.robots is None or ns in self.robots:
-                tick[ns] = (float(x[i]), float(y[i]), float(yaw[i]))
-                here = self.corrected(ns, tick[ns])
+                here = self.corrected(ns, (float(x[i]), float(y[i]), float(yaw[i])))
                 self.latest[ns] = here
                 path = self.paths.setdefault(ns, [])
                 if not path or abs(path[-1][0] - here[0]) + abs(path[-1][1] - here[1]) > 0.02:
                     path.append((here[0], here[1]))
-        self.poses[(msg.stamp.sec, msg.stamp.nanosec)] = tick
-        self.latest_stamp = max(self.latest_stamp, (msg.stamp.sec, msg.stamp.nanosec))
-        while len(self.poses) > ODOM_KEPT:
+        if msg.namespaces != self._roster[0]:
+            self._roster = (msg.namespaces, {ns: i for i, ns in enumerate(msg.namespaces)})
+        stamp = (msg.stamp.sec, msg.stamp.nanosec)
+        if stamp <= self.latest_stamp:  # odometry comes in stamp order: the daemon was reset
+            self.poses.clear()
+            self.waiting.clear()
+        self.poses[stamp] = TickPoses(self._roster[1], msg)
+        self.latest_stamp = stamp
+        oldest = _seconds(stamp) - ODOM_KEPT_S
+        while _seconds(next(iter(self.poses))) < oldest:
             self.poses.pop(next(iter(self.poses)))
         waiting, self.waiting = self.waiting, []
         for scans in waiting:
             self.on_scans(scans)
 
     def on_scans(self, msg: FleetScans) -> None:
-        poses = self.poses.get((msg.stamp.sec, msg.stamp.nanosec))
+        stamp = (msg.stamp.sec, msg.stamp.nanosec)
+        poses = self.poses.get(stamp)
         if poses is None:
-            if len(self.waiting) < ODOM_KEPT:
+            # odometry comes in stamp order: once a later tick's has come, this one's never will
+            if stamp > self.latest_stamp and len(self.waiting) < WAITING_KEPT:
                 self.waiting.append(msg)  # its tick's odometry is still on its way
+            else:
+                self.unpaired += 1
             return
         if self.beams is None:
             self.beams = Beams(msg.angle_min, msg.angle_increment, msg.beams, msg.range_min, msg.range_max)
         rows = msg.ranges_array()
         for i, ns in enumerate(msg.namespaces):
-            pose = poses.get(ns)
+            pose = poses.get(ns) if self.robots is None or ns in self.robots else None
             if pose is None:
                 continue
             ox, oy, _ = SCAN_OFFSET.get(self.models.get(ns, "burger"), SCAN_OFFSET["burger"])
@@ -128,3 +161,7 @@ class Mapper:
             if ns in self.latest:
                 self.latest[ns] = compose(motion, self.latest[ns])
             self.paths[ns] = [*self.backend.path(ns), self.latest.get(ns, (0.0, 0.0, 0.0))[:2]]
+
+
+def _seconds(stamp: tuple[int, int]) -> float:
+    return stamp[0] + stamp[1] * 1e-9

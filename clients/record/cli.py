@@ -32,7 +32,7 @@ import zenoh
 
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
-from clients.follow import drain, follow, stop_on_signals
+from clients.follow import UpToStop, drain, follow, stop_on_signals
 from clients.record import fleet_to_ros as conv
 from clients.record import ros_source
 from clients.record.bag import BagExists, BagWriter
@@ -249,7 +249,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fleet-record: error: {e}", file=sys.stderr)
         return EXIT_USAGE
     rec = Recorder(plan, bag, client)  # type: ignore[arg-type]  # None with --source ros, which never asks it
+    up_to_stop = None
     if client is not None:
+        fleet = client
+        up_to_stop = UpToStop(lambda: fleet.clock().clock, scans="scan" in plan.topics)
         client.on_fleet_odom(rec.inbox.put)
         if "scan" in plan.topics:
             client.on_fleet_scans(rec.inbox.put)
@@ -260,7 +263,8 @@ def main(argv: list[str] | None = None) -> int:
           f"{'every robot' if plan.robots is None else ', '.join(sorted(plan.robots))} into {plan.output} "
           "(Ctrl-C stops)", file=sys.stderr, flush=True)  # fmt: skip
     try:
-        wall = follow(rec.inbox, rec.handle, stop, plan.duration, lambda t: progress_line(bag, t, rec.inbox.qsize()))
+        wall = follow(rec.inbox, rec.handle, stop, plan.duration, lambda t: progress_line(bag, t, rec.inbox.qsize()),
+                      None, up_to_stop)  # fmt: skip
     finally:  # no more input; what arrived is written
         if client is not None:
             client.close()
@@ -268,7 +272,7 @@ def main(argv: list[str] | None = None) -> int:
             source.close()
         if session is not None:
             session.close()
-        drain(rec.inbox, rec.handle)
+        drain(rec.inbox, rec.handle, up_to_stop)
         bag.close()
     print(summary(bag, wall), flush=True)
     return EXIT_OK

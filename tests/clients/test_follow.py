@@ -1,0 +1,107 @@
+"""UpToStop: what a follower (fleet-map, fleet-record) still takes in after Ctrl-C.
+
+The messages are the fleet topics' own types, put in a real queue as zenoh's threads would;
+the daemon's clock is a function returning the stamp it would answer. Through a real daemon,
+tests/clients/test_mapping.py and test_record.py stop their followers the moment their last
+step returns.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+import pytest
+
+from clients.follow import UpToStop, drain, follow
+from protocol import FleetError
+from protocol.errors import ErrorCode
+from protocol.messages import FleetOdometry, FleetScans, Time
+
+TICK_NS = 33_333_333
+
+
+def _stamp(tick: int) -> Time:
+    return Time(sec=tick * TICK_NS // 10**9, nanosec=tick * TICK_NS % 10**9)
+
+
+def _odometry(tick: int) -> FleetOdometry:
+    return FleetOdometry(stamp=_stamp(tick), namespaces=[], x=b"", y=b"", yaw=b"")
+
+
+def _scans(tick: int) -> FleetScans:
+    return FleetScans(stamp=_stamp(tick), namespaces=[], beams=0, angle_min=0.0, angle_max=0.0,
+                      angle_increment=0.0, range_min=0.0, range_max=0.0, ranges=b"")  # fmt: skip
+
+
+def _tick(msg: FleetOdometry | FleetScans) -> tuple[str, int]:
+    return type(msg).__name__, round((msg.stamp.sec * 10**9 + msg.stamp.nanosec) / TICK_NS)
+
+
+def test_a_lockstep_stop_takes_the_scans_still_behind_the_odometry() -> None:
+    """The daemon stopped at tick 12; its odometry is all in, two scans still on their way
+    (they come while the follower works): they are taken, and then the quiet ends the wait."""
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    for t in range(1, 13):
+        inbox.put(_odometry(t))
+    inbox.put(_scans(0))
+    taken: list[tuple[str, int]] = []
+
+    def handle(msg: FleetOdometry | FleetScans) -> None:
+        taken.append(_tick(msg))
+        if _tick(msg) == ("FleetOdometry", 12):  # the scans of ticks 6 and 12 trail behind
+            inbox.put(_scans(6))
+            inbox.put(_scans(12))
+
+    up_to = UpToStop(lambda: _stamp(12))
+    stop = threading.Event()
+    stop.set()
+    follow(inbox, handle, stop, 0.0, lambda t: "", up_to_stop=up_to)
+    assert taken == [("FleetOdometry", t) for t in range(1, 13)] + [("FleetScans", t) for t in (0, 6, 12)]
+    assert up_to.limit == (0, 12 * TICK_NS) and up_to.left_out == 0
+
+
+def test_a_running_stop_ends_at_the_first_scan_after_the_clock() -> None:
+    """In real time ticks go on after the stop: what is stamped after the clock is left out, and
+    the first scan after it says no older one is on its way (scans come in order)."""
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    for t in range(10, 30):
+        inbox.put(_odometry(t))
+        if t % 6 == 0:
+            inbox.put(_scans(t))
+    taken: list[tuple[str, int]] = []
+    up_to = UpToStop(lambda: _stamp(20))
+    up_to.catch_up(inbox, lambda m: taken.append(_tick(m)))
+    assert [t for kind, t in taken if kind == "FleetOdometry"] == list(range(10, 21))
+    assert [t for kind, t in taken if kind == "FleetScans"] == [12, 18]
+    assert up_to.complete() and up_to.left_out == 5  # odometry 21..24, then the scan of tick 24
+    assert inbox.qsize() == 5  # odometry 25..29, never waited for
+    drain(inbox, lambda m: taken.append(_tick(m)), up_to)  # what is left after the close: all later
+    assert len(taken) == 13 and up_to.left_out == 10
+
+
+def test_no_daemon_at_the_stop_means_what_arrived_is_all() -> None:
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    inbox.put(_odometry(3))
+
+    def gone() -> Time:
+        raise FleetError(ErrorCode.UNAVAILABLE, "no fleetsim daemon answered")
+
+    up_to = UpToStop(gone)
+    up_to.catch_up(inbox, lambda m: pytest.fail("nothing is waited for"))
+    assert up_to.limit is None and inbox.qsize() == 1
+    taken: list[tuple[str, int]] = []
+    drain(inbox, lambda m: taken.append(_tick(m)), up_to)
+    assert taken == [("FleetOdometry", 3)]
+
+
+def test_a_fleet_without_robots_ends_the_wait_at_the_quiet(monkeypatch: pytest.MonkeyPatch) -> None:
+    """No robot, no odometry: the wait ends after the quiet meant for that, not at the cap."""
+    import clients.follow as follow_module
+
+    monkeypatch.setattr(follow_module, "QUIET_NO_ODOMETRY_S", 0.1)
+    monkeypatch.setattr(follow_module, "CATCH_UP_S", 3600.0)
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    up_to = UpToStop(lambda: _stamp(40), scans=False)
+    up_to.catch_up(inbox, lambda m: pytest.fail("nothing came"))
+    assert not up_to.odometry_in() and not up_to.complete()
