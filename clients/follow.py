@@ -17,15 +17,19 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any, TypeVar
 
+from clients.tick_merge import RESET_SECONDS
 from protocol import FleetError
 from protocol.messages import FleetOdometry, FleetScans, Time
 
 T = TypeVar("T")
 
-#: after a stop, the longest a follower waits for messages that were sent before it (wall s)
+#: after a stop, the longest a follower waits for messages that were sent before it (wall s,
+#: the follower's own work on what comes not counted)
 CATCH_UP_S = 5.0
 #: once the stop's tick of odometry has come, this long without a message means nothing more is
-#: on its way (a lockstep or paused daemon sends nothing after its last tick)
+#: on its way (a lockstep or paused daemon sends nothing after its last tick); also how long
+#: messages are still taken after the first scan past the stop (the other daemons' scans of a
+#: shared fleet, each daemon's in order of its own)
 QUIET_S = 0.3
 #: ... and this long before it has come (a fleet with no robot sends no odometry at all)
 QUIET_NO_ODOMETRY_S = 1.0
@@ -36,11 +40,12 @@ class UpToStop:
 
     At the stop, the daemon's clock is the limit: messages stamped up to it that are still on
     their way are waited for, and later ones left out. Zenoh sends a tick's odometry before its
-    scans, and the scans at a lower priority, so under load scans trail the odometry: a mapper
-    busy matching scans that stopped when asked lost the last third of its loop. Done when the
-    odometry of the limit's tick and a scan stamped after it have come (scans come in order:
-    none older is still on the way), when nothing has come for a while (``QUIET_S``), or after
-    ``CATCH_UP_S``.
+    scans, and the scans at a lower priority, so under load scans trail the odometry: two
+    mappers stopped 0.2 s after a lockstep drive ended, on a loaded machine, drew different
+    maps. The wait ends ``QUIET_S`` after the odometry of the limit's tick and a scan stamped
+    after it have come (one daemon's scans come in order: none older is still on its way), when
+    nothing has come for ``QUIET_S`` (``QUIET_NO_ODOMETRY_S`` before that tick's odometry), or
+    after ``CATCH_UP_S``; ``ended`` says which.
     """
 
     def __init__(self, clock: Callable[[], Time], odometry: bool = True, scans: bool = True) -> None:
@@ -50,15 +55,16 @@ class UpToStop:
         self.newest_odometry: tuple[int, int] = (-1, 0)
         self.newest_scans: tuple[int, int] = (-1, 0)
         self.left_out = 0  # messages stamped after the limit
+        self.ended = ""  # "complete", "quiet", "cap" or "no daemon", once caught up
 
     def keep(self, msg: Any) -> bool:
         """Notes ``msg``'s stamp; whether to take it (not when stamped after the limit)."""
         if isinstance(msg, FleetOdometry):
             stamp = (msg.stamp.sec, msg.stamp.nanosec)
-            self.newest_odometry = max(self.newest_odometry, stamp)
+            self.newest_odometry = _newer(self.newest_odometry, stamp)
         elif isinstance(msg, FleetScans):
             stamp = (msg.stamp.sec, msg.stamp.nanosec)
-            self.newest_scans = max(self.newest_scans, stamp)
+            self.newest_scans = _newer(self.newest_scans, stamp)
         else:
             return True
         if self.limit is not None and stamp > self.limit:
@@ -78,15 +84,24 @@ class UpToStop:
         try:
             now = self._clock()
         except FleetError:
+            self.ended = "no daemon"
             return
         self.limit = (now.sec, now.nanosec)
         start = last = time.monotonic()
         handling = 0.0  # the follower's own work does not count against the wait
-        while not self.complete():
+        completed: float | None = None
+        while True:
             t = time.monotonic()
+            if completed is None and self.complete():
+                completed = t
+            if completed is not None and t - completed >= QUIET_S:
+                self.ended = "complete"
+                return
             if t - start - handling >= CATCH_UP_S:
+                self.ended = "cap"
                 return
             if t - last >= (QUIET_S if self.odometry_in() else QUIET_NO_ODOMETRY_S):
+                self.ended = "quiet"
                 return
             try:
                 msg = inbox.get(timeout=0.05)
@@ -97,6 +112,12 @@ class UpToStop:
                 handle(msg)
             last = time.monotonic()
             handling += last - got
+
+
+def _newer(newest: tuple[int, int], stamp: tuple[int, int]) -> tuple[int, int]:
+    """The newest stamp of a stream, which starts again from a stamp a reset took back."""
+    back = (newest[0] - stamp[0]) + (newest[1] - stamp[1]) * 1e-9
+    return stamp if stamp > newest or back >= RESET_SECONDS else newest
 
 
 def stop_on_signals() -> threading.Event:
@@ -119,10 +140,12 @@ def follow(
     progress: Callable[[float], str],
     every_loop: Callable[[], None] | None = None,
     up_to_stop: UpToStop | None = None,
+    on_stop: Callable[[], None] | None = None,
 ) -> float:
     """Handle messages until ``stop`` or ``duration`` wall seconds (0: no limit); returns the time
-    taken. ``every_loop`` runs at least ten times a second (a controller's hook). With
-    ``up_to_stop``, the messages the fleet sent before the end are waited for and handled too."""
+    taken. ``every_loop`` runs at least ten times a second (a controller's hook), ``on_stop``
+    once at the end (a controller stops its robots). With ``up_to_stop``, the messages the fleet
+    sent before the end are then waited for and handled too."""
     keep = up_to_stop.keep if up_to_stop is not None else None
     t0 = time.monotonic()
     tty = sys.stderr.isatty()
@@ -147,6 +170,8 @@ def follow(
             next_report = now + every
     if tty:
         print(file=sys.stderr)
+    if on_stop is not None:
+        on_stop()
     if up_to_stop is not None:
         up_to_stop.catch_up(inbox, handle)
     return time.monotonic() - t0

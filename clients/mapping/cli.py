@@ -30,7 +30,7 @@ import numpy as np
 
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
-from clients.follow import UpToStop, drain, follow, stop_on_signals
+from clients.follow import CATCH_UP_S, UpToStop, drain, follow, stop_on_signals
 from clients.mapping.explore import Explorer
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
@@ -189,6 +189,11 @@ class Drive:
         latest = self.mapper.latest
         return {ns: self.explorer.command(ns, latest[ns]) for ns in self.names if ns in latest}
 
+    def halt(self) -> None:
+        """Stop the robots (at the end, before the messages still on their way are taken)."""
+        for ns in self.names:
+            self.client.stop(ns)
+
     def realtime(self) -> None:
         now = time.monotonic()
         sec, nsec = self.mapper.latest_stamp
@@ -316,14 +321,13 @@ def main(argv: list[str] | None = None) -> int:
                 drive.lockstep(inbox, plan.explore_limit, plan.duration, lambda t: progress_line(mapper, t))
             else:
                 follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), drive.realtime,
-                       up_to_stop)  # fmt: skip
-                for ns in names:
-                    client.stop(ns)
+                       up_to_stop, on_stop=drive.halt)  # fmt: skip
         else:
             follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), None, up_to_stop)
     finally:
         client.close()
         drain(inbox, mapper.take, up_to_stop)
+        mapper.give_up_waiting()
     occupancy = grid.occupancy()
     try:
         pgm, meta = write_map(plan.stem, occupancy, force=plan.force)
@@ -336,6 +340,9 @@ def main(argv: list[str] | None = None) -> int:
     if (back := mapper.backend) is not None:
         print(f"fleet-map: loop closure: keyframes {len(back.keyframes)}, closures {back.closures}, "
               f"optimisations {back.optimisations}, redraws {back.redraws}", flush=True)  # fmt: skip
+    if up_to_stop.ended == "cap":
+        print(f"fleet-map: stopped waiting for the messages sent before the stop after {CATCH_UP_S:g} s",
+              file=sys.stderr, flush=True)  # fmt: skip
     if mapper.unpaired:
         print(f"fleet-map: {mapper.unpaired} scans came without their tick's odometry (lost on the way) "
               "and are not in the map", file=sys.stderr, flush=True)  # fmt: skip

@@ -23,6 +23,7 @@ from clients.mapping.backend import Backend
 from clients.mapping.grid import Beams, LogOddsGrid
 from clients.mapping.match import locate
 from clients.mapping.posegraph import compose
+from clients.tick_merge import RESET_SECONDS
 from protocol.frames import SCAN_OFFSET
 from protocol.messages import FleetOdometry, FleetScans
 
@@ -34,17 +35,24 @@ WAITING_KEPT = 64
 
 class TickPoses:
     """One tick's odometry as it came (columns, not a tuple per robot: a viewer's mapper keeps
-    ten seconds of a thousand robots); ``rows`` is shared by the ticks of one roster."""
+    ten seconds of a thousand robots); a row index is shared by the ticks of one roster. In a
+    fleet shared by several daemons a daemon's part may come after the rest of its tick
+    (clients/tick_merge.py): it is added as a part of its own."""
 
-    __slots__ = ("rows", "x", "y", "yaw")
+    __slots__ = ("parts",)
 
     def __init__(self, rows: dict[str, int], msg: FleetOdometry) -> None:
-        self.rows = rows
-        self.x, self.y, self.yaw = msg.array("x"), msg.array("y"), msg.array("yaw")
+        self.parts = [(rows, msg.array("x"), msg.array("y"), msg.array("yaw"))]
+
+    def add(self, rows: dict[str, int], msg: FleetOdometry) -> None:
+        self.parts.append((rows, msg.array("x"), msg.array("y"), msg.array("yaw")))
 
     def get(self, ns: str) -> tuple[float, float, float] | None:
-        i = self.rows.get(ns)
-        return None if i is None else (float(self.x[i]), float(self.y[i]), float(self.yaw[i]))
+        for rows, x, y, yaw in self.parts:
+            i = rows.get(ns)
+            if i is not None:
+                return float(x[i]), float(y[i]), float(yaw[i])
+        return None
 
 
 @dataclass
@@ -57,7 +65,7 @@ class Mapper:
     #: each kept tick's odometry by stamp, oldest first
     poses: dict[tuple[int, int], TickPoses] = field(default_factory=dict)
     waiting: list[FleetScans] = field(default_factory=list)
-    #: scans dropped because their tick's odometry did not come (or came too long before them)
+    #: scans (one a robot) left out because their tick's odometry did not come (or came too long before them)
     unpaired: int = 0
     _roster: tuple[list[str], dict[str, int]] = field(default_factory=lambda: ([], {}))
     paths: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
@@ -108,8 +116,13 @@ class Mapper:
         if msg.namespaces != self._roster[0]:
             self._roster = (msg.namespaces, {ns: i for i, ns in enumerate(msg.namespaces)})
         stamp = (msg.stamp.sec, msg.stamp.nanosec)
-        if stamp <= self.latest_stamp:  # odometry comes in stamp order: the daemon was reset
-            self.poses.clear()
+        if stamp <= self.latest_stamp:
+            if _seconds(self.latest_stamp) - _seconds(stamp) < RESET_SECONDS:
+                # a daemon's part of a tick that went on without it (a shared fleet)
+                if (kept := self.poses.get(stamp)) is not None:
+                    kept.add(self._roster[1], msg)
+                return
+            self.poses.clear()  # the clock went back: the daemon was reset
             self.waiting.clear()
         self.poses[stamp] = TickPoses(self._roster[1], msg)
         self.latest_stamp = stamp
@@ -120,6 +133,12 @@ class Mapper:
         for scans in waiting:
             self.on_scans(scans)
 
+    def give_up_waiting(self) -> None:
+        """The input ended: the scans still waiting for their odometry are counted as unpaired."""
+        for msg in self.waiting:
+            self.unpaired += sum(1 for ns in msg.namespaces if self.robots is None or ns in self.robots)
+        self.waiting.clear()
+
     def on_scans(self, msg: FleetScans) -> None:
         stamp = (msg.stamp.sec, msg.stamp.nanosec)
         poses = self.poses.get(stamp)
@@ -128,7 +147,7 @@ class Mapper:
             if stamp > self.latest_stamp and len(self.waiting) < WAITING_KEPT:
                 self.waiting.append(msg)  # its tick's odometry is still on its way
             else:
-                self.unpaired += 1
+                self.unpaired += sum(1 for ns in msg.namespaces if self.robots is None or ns in self.robots)
             return
         if self.beams is None:
             self.beams = Beams(msg.angle_min, msg.angle_increment, msg.beams, msg.range_min, msg.range_max)

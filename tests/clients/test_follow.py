@@ -2,8 +2,8 @@
 
 The messages are the fleet topics' own types, put in a real queue as zenoh's threads would;
 the daemon's clock is a function returning the stamp it would answer. Through a real daemon,
-tests/clients/test_mapping.py and test_record.py stop their followers the moment their last
-step returns.
+tests/clients/test_mapping.py and test_record.py stop fleet-map and fleet-record the moment
+their last step returns.
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def test_a_lockstep_stop_takes_the_scans_still_behind_the_odometry() -> None:
     stop.set()
     follow(inbox, handle, stop, 0.0, lambda t: "", up_to_stop=up_to)
     assert taken == [("FleetOdometry", t) for t in range(1, 13)] + [("FleetScans", t) for t in (0, 6, 12)]
-    assert up_to.limit == (0, 12 * TICK_NS) and up_to.left_out == 0
+    assert up_to.limit == (0, 12 * TICK_NS) and up_to.left_out == 0 and up_to.ended == "quiet"
 
 
 def test_a_running_stop_ends_at_the_first_scan_after_the_clock() -> None:
@@ -74,10 +74,9 @@ def test_a_running_stop_ends_at_the_first_scan_after_the_clock() -> None:
     up_to.catch_up(inbox, lambda m: taken.append(_tick(m)))
     assert [t for kind, t in taken if kind == "FleetOdometry"] == list(range(10, 21))
     assert [t for kind, t in taken if kind == "FleetScans"] == [12, 18]
-    assert up_to.complete() and up_to.left_out == 5  # odometry 21..24, then the scan of tick 24
-    assert inbox.qsize() == 5  # odometry 25..29, never waited for
-    drain(inbox, lambda m: taken.append(_tick(m)), up_to)  # what is left after the close: all later
-    assert len(taken) == 13 and up_to.left_out == 10
+    assert up_to.complete() and up_to.ended == "complete"
+    assert up_to.left_out == 10  # odometry 21..29 and the scan of tick 24 (read in the grace after it)
+    assert inbox.empty()
 
 
 def test_no_daemon_at_the_stop_means_what_arrived_is_all() -> None:
@@ -89,7 +88,7 @@ def test_no_daemon_at_the_stop_means_what_arrived_is_all() -> None:
 
     up_to = UpToStop(gone)
     up_to.catch_up(inbox, lambda m: pytest.fail("nothing is waited for"))
-    assert up_to.limit is None and inbox.qsize() == 1
+    assert up_to.limit is None and inbox.qsize() == 1 and up_to.ended == "no daemon"
     taken: list[tuple[str, int]] = []
     drain(inbox, lambda m: taken.append(_tick(m)), up_to)
     assert taken == [("FleetOdometry", 3)]
@@ -100,8 +99,45 @@ def test_a_fleet_without_robots_ends_the_wait_at_the_quiet(monkeypatch: pytest.M
     import clients.follow as follow_module
 
     monkeypatch.setattr(follow_module, "QUIET_NO_ODOMETRY_S", 0.1)
-    monkeypatch.setattr(follow_module, "CATCH_UP_S", 3600.0)
+    monkeypatch.setattr(follow_module, "CATCH_UP_S", 30.0)
     inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
     up_to = UpToStop(lambda: _stamp(40), scans=False)
     up_to.catch_up(inbox, lambda m: pytest.fail("nothing came"))
-    assert not up_to.odometry_in() and not up_to.complete()
+    assert not up_to.odometry_in() and not up_to.complete() and up_to.ended == "quiet"
+
+
+def test_the_wait_is_capped_but_not_by_the_followers_own_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A follower slower than the wait's cap still takes what is in the inbox (its work is not
+    counted); a stream that never reaches the stop's tick ends at the cap."""
+    import clients.follow as follow_module
+
+    monkeypatch.setattr(follow_module, "CATCH_UP_S", 0.2)
+    monkeypatch.setattr(follow_module, "QUIET_NO_ODOMETRY_S", 30.0)
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    for t in range(1, 4):
+        inbox.put(_odometry(t))
+    taken: list[tuple[str, int]] = []
+    stop_feeding = threading.Event()
+
+    def slow(msg: FleetOdometry | FleetScans) -> None:
+        taken.append(_tick(msg))
+        stop_feeding.wait(0.15)  # three of these outlast the cap
+
+    up_to = UpToStop(lambda: _stamp(100), scans=False)
+    up_to.catch_up(inbox, slow)
+    assert taken == [("FleetOdometry", t) for t in range(1, 4)] and up_to.ended == "cap"
+
+
+def test_a_reset_during_the_follow_starts_the_streams_again() -> None:
+    """Stamps taken back by a reset: the stop's limit is the new clock, and its scans are still
+    waited for (the old run's newer stamps do not count)."""
+    up_to = UpToStop(lambda: _stamp(5))
+    for msg in (_odometry(3000), _scans(3000), _odometry(4), _scans(0)):
+        assert up_to.keep(msg)
+    assert up_to.newest_odometry == (0, 4 * TICK_NS) and up_to.newest_scans == (0, 0)
+    inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+    for msg in (_odometry(5), _scans(2), _odometry(6), _scans(7)):
+        inbox.put(msg)
+    taken: list[tuple[str, int]] = []
+    up_to.catch_up(inbox, lambda m: taken.append(_tick(m)))
+    assert taken == [("FleetOdometry", 5), ("FleetScans", 2)] and up_to.ended == "complete"

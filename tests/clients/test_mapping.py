@@ -12,6 +12,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from PIL import Image
@@ -99,6 +100,26 @@ def test_scans_late_or_early_meet_their_tick_and_lost_ones_are_counted() -> None
     assert list(m.poses) == [(0, 33333333)] and m.latest_stamp == (0, 33333333)
     m.on_scans(_scan_at(1))
     assert m.grid.scans == 2
+
+
+def test_a_daemons_late_part_of_a_tick_is_kept_not_taken_for_a_reset() -> None:
+    """In a shared fleet a daemon's part of a tick can come after later ticks (TickMerge hands it
+    on alone): its robots' poses join that tick, the others' stay, and nothing is forgotten."""
+    m = Mapper(LogOddsGrid((-3.0, 3.0, -3.0, 3.0), 0.05), None, {})
+
+    def part(tick: int, ns: str, x: float) -> FleetOdometry:
+        return FleetOdometry(stamp=Time.from_seconds(tick / 30), namespaces=[ns], x=np.array([x]).tobytes(),
+                             y=np.zeros(1).tobytes(), yaw=np.zeros(1).tobytes())  # fmt: skip
+
+    for t in range(1, 11):
+        m.on_odometry(part(t, "a", 0.1))
+    m.on_odometry(part(4, "b", 0.2))  # daemon b's part of tick 4, six ticks late
+    assert len(m.poses) == 10 and m.latest_stamp == (0, 333333333)
+    scans = _scan_at(4)
+    m.on_scans(FleetScans(**{**msgspec.structs.asdict(scans), "namespaces": ["a", "b"],
+                             "ranges": scans.ranges * 2}))  # fmt: skip
+    assert m.grid.scans == 2 and m.unpaired == 0
+    assert m.poses[(0, 133333333)].get("b") == (0.2, 0.0, 0.0)
 
 
 def test_map_turtlebot3_world_through_the_daemon(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
@@ -225,10 +246,11 @@ def test_lockstep_exploration_repeats_exactly(daemon_factory: Callable[..., Daem
         for i, (x, y) in enumerate([(-2.0, -0.5), (6.0, 1.0), (1.0, -3.0)]):
             c.spawn(f"tb3_{i}", x, y)
         stem = tmp_path / f"run{run}"
-        _explore(d, stem, 40)
+        _explore(d, stem, 20)
         maps.append(stem.with_name(f"run{run}.pgm").read_bytes())
         d.stop()
     assert maps[0] == maps[1]
+    assert maps[0].count(b"\x00") > 200  # walls were mapped (occupied cells are black in a pgm)
 
 
 # -- scan matching and drifting odometry --------------------------------------------------------
@@ -332,7 +354,6 @@ def test_fleet_map_closes_a_loop_through_the_daemon(daemon_factory: Callable[...
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 0, err
-    assert "without their tick's odometry" not in err, err
     closures = re.search(r"loop closure: keyframes \d+, closures (\d+), optimisations (\d+)", out)
     assert closures is not None and int(closures.group(1)) >= 1 and int(closures.group(2)) >= 1, out
     quality = score(read_map(tmp_path / "loops.yaml"), c.world(), [(-2.0, -0.5)])
