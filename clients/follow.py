@@ -46,11 +46,19 @@ class UpToStop:
     after it have come (one daemon's scans come in order: none older is still on its way), when
     nothing has come for ``QUIET_S`` (``QUIET_NO_ODOMETRY_S`` before that tick's odometry), or
     after ``CATCH_UP_S``; ``ended`` says which.
+
+    Seeing every message in order, it also counts the ticks whose odometry never came
+    (``missed_ticks``, with the daemon's ``tick_s``): zenoh drops what a follower too slow for
+    the fleet cannot take, and a map or a bag with holes should say so.
     """
 
-    def __init__(self, clock: Callable[[], Time], odometry: bool = True, scans: bool = True) -> None:
+    def __init__(
+        self, clock: Callable[[], Time], odometry: bool = True, scans: bool = True, tick_s: float = 0.0
+    ) -> None:
         self._clock = clock
         self._odometry, self._scans = odometry, scans
+        self._tick_s = tick_s
+        self.missed_ticks = 0
         self.limit: tuple[int, int] | None = None
         self.newest_odometry: tuple[int, int] = (-1, 0)
         self.newest_scans: tuple[int, int] = (-1, 0)
@@ -61,6 +69,9 @@ class UpToStop:
         """Notes ``msg``'s stamp; whether to take it (not when stamped after the limit)."""
         if isinstance(msg, FleetOdometry):
             stamp = (msg.stamp.sec, msg.stamp.nanosec)
+            if self._tick_s > 0 and stamp > self.newest_odometry >= (0, 0):
+                gap = (stamp[0] - self.newest_odometry[0]) + (stamp[1] - self.newest_odometry[1]) * 1e-9
+                self.missed_ticks += max(0, round(gap / self._tick_s) - 1)
             self.newest_odometry = _newer(self.newest_odometry, stamp)
         elif isinstance(msg, FleetScans):
             stamp = (msg.stamp.sec, msg.stamp.nanosec)

@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
           file=sys.stderr, flush=True)  # fmt: skip
     coverage: list[tuple[float, float]] = []
-    up_to_stop = UpToStop(lambda: client.clock().clock)
+    up_to_stop = UpToStop(lambda: client.clock().clock, tick_s=client.clock().dt)
     try:
         if plan.explore:
             names = sorted(plan.robots or robots)
@@ -343,6 +343,9 @@ def main(argv: list[str] | None = None) -> int:
     if up_to_stop.ended == "cap":
         print(f"fleet-map: stopped waiting for the messages sent before the stop after {CATCH_UP_S:g} s",
               file=sys.stderr, flush=True)  # fmt: skip
+    if up_to_stop.missed_ticks:
+        print(f"fleet-map: {up_to_stop.missed_ticks} ticks of odometry did not come (lost on the way to a follower "
+              "too slow for the fleet, or stepped without publishing)", file=sys.stderr, flush=True)  # fmt: skip
     if mapper.unpaired:
         print(f"fleet-map: {mapper.unpaired} scans came without their tick's odometry (lost on the way) "
               "and are not in the map", file=sys.stderr, flush=True)  # fmt: skip

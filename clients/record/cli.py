@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
             client = FleetClient(
                 prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False)
             )
-            client.clock()  # fail now, with the usual message, if no daemon answers
+            tick_s = client.clock().dt  # fail now, with the usual message, if no daemon answers
     except FleetError as e:
         print(f"fleet-record: {e.message}", file=sys.stderr)
         return EXIT_NO_DAEMON if e.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT) else EXIT_USAGE
@@ -252,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     up_to_stop = None
     if client is not None:
         fleet = client
-        up_to_stop = UpToStop(lambda: fleet.clock().clock, scans="scan" in plan.topics)
+        up_to_stop = UpToStop(lambda: fleet.clock().clock, scans="scan" in plan.topics, tick_s=tick_s)
         client.on_fleet_odom(rec.inbox.put)
         if "scan" in plan.topics:
             client.on_fleet_scans(rec.inbox.put)
@@ -275,6 +275,10 @@ def main(argv: list[str] | None = None) -> int:
         drain(rec.inbox, rec.handle, up_to_stop)
         bag.close()
     print(summary(bag, wall), flush=True)
+    if up_to_stop is not None and up_to_stop.missed_ticks:
+        print(f"fleet-record: {up_to_stop.missed_ticks} ticks of the fleet's odometry did not come (lost on the way "
+              "to a recorder too slow for the fleet, or stepped without publishing)",
+              file=sys.stderr, flush=True)  # fmt: skip
     return EXIT_OK
 
 

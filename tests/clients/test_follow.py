@@ -141,3 +141,13 @@ def test_a_reset_during_the_follow_starts_the_streams_again() -> None:
     taken: list[tuple[str, int]] = []
     up_to.catch_up(inbox, lambda m: taken.append(_tick(m)))
     assert taken == [("FleetOdometry", 5), ("FleetScans", 2)] and up_to.ended == "complete"
+
+
+def test_ticks_whose_odometry_never_came_are_counted() -> None:
+    """Two ticks missing between 2 and 5; a reset and a daemon's late part are no holes."""
+    up_to = UpToStop(lambda: _stamp(0), tick_s=TICK_NS / 1e9)
+    for t in (1, 2, 5, 6, 6, 4, *range(7, 41), 1, 2):  # ... then a reset back to tick 1
+        up_to.keep(_odometry(t))
+    assert up_to.missed_ticks == 2 and up_to.newest_odometry == (0, 2 * TICK_NS)
+    up_to.keep(_odometry(100))
+    assert up_to.missed_ticks == 2 + 97

@@ -115,6 +115,24 @@ def test_a_lockstep_run_recorded_and_read_back(daemon_factory: Callable[..., Dae
     )
 
 
+def test_ticks_that_never_came_are_reported(daemon_factory: Callable[..., Daemon], tmp_path: Path) -> None:
+    """Steps that do not publish leave a hole in the bag: fleet-record says how many ticks, as it
+    would for ticks zenoh dropped on the way to a recorder too slow for the fleet."""
+    d = daemon_factory("--lockstep")
+    c = d.client()
+    c.spawn("burger_1", -2.0, -0.5)
+    bag = tmp_path / "holed"
+    proc = record(d, bag, "--topics", "odom")
+    wait_subscribed(d, "fleet/odometry", proc)
+    c.step(30)
+    c.step(12, publish=False)
+    c.step(30)
+    code, out, err = stop(proc)
+    assert code == 0, err
+    assert "/burger_1/odom" in out and " 60 messages" in out, out
+    assert "fleet-record: 12 ticks of the fleet's odometry did not come" in err, err
+
+
 def test_bad_requests_are_one_line_and_touch_nothing(daemon: Daemon, tmp_path: Path) -> None:
     taken = tmp_path / "taken"
     taken.mkdir()
