@@ -53,9 +53,15 @@ class UpToStop:
     """
 
     def __init__(
-        self, clock: Callable[[], Time], odometry: bool = True, scans: bool = True, tick_s: float = 0.0
+        self,
+        clock: Callable[[], Time],
+        odometry: bool = True,
+        scans: bool = True,
+        tick_s: float = 0.0,
+        hurry: threading.Event | None = None,
     ) -> None:
         self._clock = clock
+        self.hurry = hurry or threading.Event()  # set: stop taking anything more (a second Ctrl-C)
         self._odometry, self._scans = odometry, scans
         self._tick_s = tick_s
         self.missed_ticks = 0
@@ -63,7 +69,7 @@ class UpToStop:
         self.newest_odometry: tuple[int, int] = (-1, 0)
         self.newest_scans: tuple[int, int] = (-1, 0)
         self.left_out = 0  # messages stamped after the limit
-        self.ended = ""  # "complete", "quiet", "cap" or "no daemon", once caught up
+        self.ended = ""  # "complete", "quiet", "cap", "no daemon" or "hurried", once caught up
 
     def keep(self, msg: Any) -> bool:
         """Notes ``msg``'s stamp; whether to take it (not when stamped after the limit)."""
@@ -102,6 +108,9 @@ class UpToStop:
         handling = 0.0  # the follower's own work does not count against the wait
         completed: float | None = None
         while True:
+            if self.hurry.is_set():
+                self.ended = "hurried"
+                return
             t = time.monotonic()
             if completed is None and self.complete():
                 completed = t
@@ -131,11 +140,23 @@ def _newer(newest: tuple[int, int], stamp: tuple[int, int]) -> tuple[int, int]:
     return stamp if stamp > newest or back >= RESET_SECONDS else newest
 
 
-def stop_on_signals() -> threading.Event:
-    """An event that SIGINT and SIGTERM set (the loop ends cleanly, and the output is written)."""
-    stop = threading.Event()
+class Stop(threading.Event):
+    """Set at the first SIGINT or SIGTERM: the loop ends cleanly and the output is written.
+    ``hurry`` is set at the second: what is still on its way or queued is not waited for (a
+    follower far behind the fleet may have minutes of work queued)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.hurry = threading.Event()
+
+
+def stop_on_signals() -> Stop:
+    """A :class:`Stop` that SIGINT and SIGTERM set."""
+    stop = Stop()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
+        if stop.is_set():
+            stop.hurry.set()
         stop.set()
 
     signal.signal(signal.SIGINT, on_signal)
@@ -189,8 +210,9 @@ def follow(
 
 
 def drain(inbox: queue.Queue[T], handle: Callable[[T], None], up_to_stop: UpToStop | None = None) -> None:
-    """Handle what arrived before the input was closed (up to the stop's limit, if any)."""
-    while True:
+    """Handle what arrived before the input was closed (up to the stop's limit, if any; nothing
+    more once ``up_to_stop.hurry`` is set)."""
+    while up_to_stop is None or not up_to_stop.hurry.is_set():
         try:
             msg = inbox.get_nowait()
         except queue.Empty:

@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
           file=sys.stderr, flush=True)  # fmt: skip
     coverage: list[tuple[float, float]] = []
-    up_to_stop = UpToStop(lambda: client.clock().clock, tick_s=client.clock().dt)
+    up_to_stop = UpToStop(lambda: client.clock().clock, tick_s=client.clock().dt, hurry=stop.hurry)
     try:
         if plan.explore:
             names = sorted(plan.robots or robots)
@@ -340,6 +340,9 @@ def main(argv: list[str] | None = None) -> int:
     if (back := mapper.backend) is not None:
         print(f"fleet-map: loop closure: keyframes {len(back.keyframes)}, closures {back.closures}, "
               f"optimisations {back.optimisations}, redraws {back.redraws}", flush=True)  # fmt: skip
+    if up_to_stop.hurry.is_set():
+        print(f"fleet-map: a second stop: {inbox.qsize()} messages received were left out",
+              file=sys.stderr, flush=True)  # fmt: skip
     if up_to_stop.ended == "cap":
         print(f"fleet-map: stopped waiting for the messages sent before the stop after {CATCH_UP_S:g} s",
               file=sys.stderr, flush=True)  # fmt: skip

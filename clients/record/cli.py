@@ -252,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
     up_to_stop = None
     if client is not None:
         fleet = client
-        up_to_stop = UpToStop(lambda: fleet.clock().clock, scans="scan" in plan.topics, tick_s=tick_s)
+        up_to_stop = UpToStop(lambda: fleet.clock().clock, scans="scan" in plan.topics, tick_s=tick_s,
+                              hurry=stop.hurry)  # fmt: skip
         client.on_fleet_odom(rec.inbox.put)
         if "scan" in plan.topics:
             client.on_fleet_scans(rec.inbox.put)
@@ -275,6 +276,9 @@ def main(argv: list[str] | None = None) -> int:
         drain(rec.inbox, rec.handle, up_to_stop)
         bag.close()
     print(summary(bag, wall), flush=True)
+    if up_to_stop is not None and up_to_stop.hurry.is_set():
+        print(f"fleet-record: a second stop: {rec.inbox.qsize()} messages received were left out",
+              file=sys.stderr, flush=True)  # fmt: skip
     if up_to_stop is not None and up_to_stop.missed_ticks:
         print(f"fleet-record: {up_to_stop.missed_ticks} ticks of the fleet's odometry did not come (lost on the way "
               "to a recorder too slow for the fleet, or stepped without publishing)",

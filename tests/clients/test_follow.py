@@ -13,7 +13,7 @@ import threading
 
 import pytest
 
-from clients.follow import UpToStop, drain, follow
+from clients.follow import UpToStop, drain, follow, stop_on_signals
 from protocol import FleetError
 from protocol.errors import ErrorCode
 from protocol.messages import FleetOdometry, FleetScans, Time
@@ -151,3 +151,34 @@ def test_ticks_whose_odometry_never_came_are_counted() -> None:
     assert up_to.missed_ticks == 2 and up_to.newest_odometry == (0, 2 * TICK_NS)
     up_to.keep(_odometry(100))
     assert up_to.missed_ticks == 2 + 97
+
+
+def test_a_second_signal_stops_the_wait_and_the_drain() -> None:
+    """The first SIGINT stops following; the second stops taking what is still queued (a
+    follower minutes behind the fleet), and the output is written with what was taken."""
+    import os
+    import signal
+
+    before = signal.getsignal(signal.SIGINT), signal.getsignal(signal.SIGTERM)
+    try:
+        stop = stop_on_signals()
+        os.kill(os.getpid(), signal.SIGINT)
+        assert stop.is_set() and not stop.hurry.is_set()
+        inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
+        for t in range(1, 11):
+            inbox.put(_odometry(t))
+        taken: list[tuple[str, int]] = []
+
+        def handle(msg: FleetOdometry | FleetScans) -> None:
+            taken.append(_tick(msg))
+            if len(taken) == 3:
+                os.kill(os.getpid(), signal.SIGTERM)  # the second
+
+        up_to = UpToStop(lambda: _stamp(10), hurry=stop.hurry)
+        up_to.catch_up(inbox, handle)
+        drain(inbox, handle, up_to)
+        assert stop.hurry.is_set() and up_to.ended == "hurried"
+        assert len(taken) == 3 and inbox.qsize() == 7
+    finally:
+        signal.signal(signal.SIGINT, before[0])
+        signal.signal(signal.SIGTERM, before[1])
