@@ -17,7 +17,7 @@ from collections.abc import Callable
 from types import FrameType
 from typing import Any, TypeVar
 
-from clients.tick_merge import RESET_SECONDS
+from clients.tick_merge import is_reset, stamp_ns
 from protocol import FleetError
 from protocol.messages import FleetOdometry, FleetScans, Time
 
@@ -65,22 +65,22 @@ class UpToStop:
         self._odometry, self._scans = odometry, scans
         self._tick_s = tick_s
         self.missed_ticks = 0
-        self.limit: tuple[int, int] | None = None
-        self.newest_odometry: tuple[int, int] = (-1, 0)
-        self.newest_scans: tuple[int, int] = (-1, 0)
+        # stamps in nanoseconds (clients/tick_merge.py's stamp_ns)
+        self.limit: int | None = None
+        self.newest_odometry = -1
+        self.newest_scans = -1
         self.left_out = 0  # messages stamped after the limit
         self.ended = ""  # "complete", "quiet", "cap", "no daemon" or "hurried", once caught up
 
     def keep(self, msg: Any) -> bool:
         """Notes ``msg``'s stamp; whether to take it (not when stamped after the limit)."""
         if isinstance(msg, FleetOdometry):
-            stamp = (msg.stamp.sec, msg.stamp.nanosec)
-            if self._tick_s > 0 and stamp > self.newest_odometry >= (0, 0):
-                gap = (stamp[0] - self.newest_odometry[0]) + (stamp[1] - self.newest_odometry[1]) * 1e-9
-                self.missed_ticks += max(0, round(gap / self._tick_s) - 1)
+            stamp = stamp_ns(msg.stamp)
+            if self._tick_s > 0 and stamp > self.newest_odometry >= 0:
+                self.missed_ticks += max(0, round((stamp - self.newest_odometry) * 1e-9 / self._tick_s) - 1)
             self.newest_odometry = _newer(self.newest_odometry, stamp)
         elif isinstance(msg, FleetScans):
-            stamp = (msg.stamp.sec, msg.stamp.nanosec)
+            stamp = stamp_ns(msg.stamp)
             self.newest_scans = _newer(self.newest_scans, stamp)
         else:
             return True
@@ -94,7 +94,7 @@ class UpToStop:
         return not self._odometry or self.newest_odometry >= self.limit
 
     def complete(self) -> bool:
-        return self.odometry_in() and (not self._scans or self.newest_scans > (self.limit or (0, 0)))
+        return self.odometry_in() and (not self._scans or self.newest_scans > (self.limit or 0))
 
     def catch_up(self, inbox: queue.Queue[T], handle: Callable[[T], None]) -> None:
         """Take what comes up to the daemon's clock now (nothing more when no daemon answers)."""
@@ -103,7 +103,7 @@ class UpToStop:
         except FleetError:
             self.ended = "no daemon"
             return
-        self.limit = (now.sec, now.nanosec)
+        self.limit = stamp_ns(now)
         start = last = time.monotonic()
         handling = 0.0  # the follower's own work does not count against the wait
         completed: float | None = None
@@ -134,10 +134,9 @@ class UpToStop:
             handling += last - got
 
 
-def _newer(newest: tuple[int, int], stamp: tuple[int, int]) -> tuple[int, int]:
+def _newer(newest: int, stamp: int) -> int:
     """The newest stamp of a stream, which starts again from a stamp a reset took back."""
-    back = (newest[0] - stamp[0]) + (newest[1] - stamp[1]) * 1e-9
-    return stamp if stamp > newest or back >= RESET_SECONDS else newest
+    return stamp if stamp > newest or is_reset(newest, stamp) else newest
 
 
 class Stop(threading.Event):

@@ -31,8 +31,15 @@ HOLD_S = 0.1
 RESET_SECONDS = 1.0
 
 
-def _key(stamp: Time) -> int:
+def stamp_ns(stamp: Time) -> int:
+    """A stamp as one integer of nanoseconds (keys and differences without rounding)."""
     return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def is_reset(newest_ns: int, stamp_ns: int) -> bool:
+    """Whether a stamp this far behind the newest one starts a new run (the daemon was reset)
+    rather than being a late part of the ones already seen."""
+    return newest_ns - stamp_ns >= RESET_SECONDS * 1e9
 
 
 def merge(parts: list[FleetOdometry]) -> FleetOdometry:
@@ -74,7 +81,7 @@ class TickMerge:
         self._timer: threading.Timer | None = None
 
     def add(self, part: FleetOdometry) -> None:
-        key = _key(part.stamp)
+        key = stamp_ns(part.stamp)
         with self._lock:  # held while handing on: the timer's thread hands on too, in order
             self._hand_on([] if self._closed else self._take(key, part))
 
@@ -125,7 +132,7 @@ class TickMerge:
     def _take(self, key: int, part: FleetOdometry) -> list[FleetOdometry]:
         """What is ready to hand on once ``part`` is in (called under the lock)."""
         if self._last is not None and key <= self._last:
-            if self._last - key < RESET_SECONDS * 1e9:
+            if not is_reset(self._last, key):
                 return [part]  # a late part of a tick already handed on: alone, not lost
             self._pending.clear()  # the clock went back: a reset
             self._since.clear()

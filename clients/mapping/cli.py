@@ -34,6 +34,7 @@ from clients.follow import CATCH_UP_S, UpToStop, drain, follow, stop_on_signals
 from clients.mapping.explore import Explorer
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
+from clients.tick_merge import stamp_ns
 from fleetcommon.mapfile import MapFileError, OccupancyMap, pixels_of, write_map
 from fleetcommon.zenoh_config import options_from_args
 from protocol import FleetError
@@ -196,8 +197,7 @@ class Drive:
 
     def realtime(self) -> None:
         now = time.monotonic()
-        sec, nsec = self.mapper.latest_stamp
-        self.sim_time = max(0.0, sec + nsec * 1e-9)
+        self.sim_time = max(0.0, self.mapper.latest_stamp * 1e-9)
         if now >= self.next_plan:
             self.next_plan = now + PLAN_EVERY_S
             if not self._replan():
@@ -231,7 +231,7 @@ class Drive:
         the reply), then fuse the scans the reply carries, oldest first: the same order every
         run, so lockstep mapping repeats exactly (the topic's scans may arrive after the next
         plan, and are not used here)."""
-        stamp = (reply.clock.sec, reply.clock.nanosec)
+        stamp = stamp_ns(reply.clock)
         deadline = time.monotonic() + 5.0
         while self.mapper.latest_stamp < stamp and time.monotonic() < deadline:
             try:
@@ -292,6 +292,7 @@ def main(argv: list[str] | None = None) -> int:
         client = FleetClient(prefix=args.prefix, timeout=args.timeout, options=options_from_args(args, server=False))
         world = client.world()
         robots = {r.namespace: r.model for r in client.robots()}
+        started = client.clock()
     except FleetError as e:
         print(f"fleet-map: {e.message}", file=sys.stderr)
         return EXIT_NO_DAEMON if e.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT) else EXIT_FAILED
@@ -312,12 +313,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"fleet-map: mapping {world.name} from the scans of {who} into {plan.stem}.pgm/.yaml (Ctrl-C stops)",
           file=sys.stderr, flush=True)  # fmt: skip
     coverage: list[tuple[float, float]] = []
-    up_to_stop = UpToStop(lambda: client.clock().clock, tick_s=client.clock().dt, hurry=stop.hurry)
+    up_to_stop = UpToStop(lambda: client.clock().clock, tick_s=started.dt, hurry=stop.hurry)
     try:
         if plan.explore:
             names = sorted(plan.robots or robots)
             drive = Drive(client, mapper, explorer_for(grid, robots, names), names, coverage, stop)
-            if client.clock().paused:
+            if started.paused:
                 drive.lockstep(inbox, plan.explore_limit, plan.duration, lambda t: progress_line(mapper, t))
             else:
                 follow(inbox, mapper.take, stop, plan.duration, lambda t: progress_line(mapper, t), drive.realtime,

@@ -23,7 +23,7 @@ from clients.mapping.backend import Backend
 from clients.mapping.grid import Beams, LogOddsGrid
 from clients.mapping.match import locate
 from clients.mapping.posegraph import compose
-from clients.tick_merge import RESET_SECONDS
+from clients.tick_merge import is_reset, stamp_ns
 from protocol.frames import SCAN_OFFSET
 from protocol.messages import FleetOdometry, FleetScans
 
@@ -62,8 +62,8 @@ class Mapper:
     grid: LogOddsGrid
     robots: set[str] | None
     models: dict[str, str]
-    #: each kept tick's odometry by stamp, oldest first
-    poses: dict[tuple[int, int], TickPoses] = field(default_factory=dict)
+    #: each kept tick's odometry by stamp (nanoseconds), oldest first
+    poses: dict[int, TickPoses] = field(default_factory=dict)
     waiting: list[FleetScans] = field(default_factory=list)
     #: scans (one a robot) left out because their tick's odometry did not come (or came too long before them)
     unpaired: int = 0
@@ -71,7 +71,7 @@ class Mapper:
     paths: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     beams: Beams | None = None
     latest: dict[str, tuple[float, float, float]] = field(default_factory=dict)  # each robot's newest pose
-    latest_stamp: tuple[int, int] = (-1, 0)
+    latest_stamp: int = -1  # the newest odometry's stamp, nanoseconds
     #: match each scan against the map before fusing it (scan matching corrects drifting odometry)
     matching: bool = False
     #: per robot, the map frame's pose of its odometry frame (x, y, yaw): what scan matching learned
@@ -107,7 +107,7 @@ class Mapper:
     def on_odometry(self, msg: FleetOdometry) -> None:
         x, y, yaw = msg.array("x"), msg.array("y"), msg.array("yaw")
         for i, ns in enumerate(msg.namespaces):
-            if self.robots is None or ns in self.robots:
+            if self.follows(ns):
                 here = self.corrected(ns, (float(x[i]), float(y[i]), float(yaw[i])))
                 self.latest[ns] = here
                 path = self.paths.setdefault(ns, [])
@@ -115,9 +115,9 @@ class Mapper:
                     path.append((here[0], here[1]))
         if msg.namespaces != self._roster[0]:
             self._roster = (msg.namespaces, {ns: i for i, ns in enumerate(msg.namespaces)})
-        stamp = (msg.stamp.sec, msg.stamp.nanosec)
+        stamp = stamp_ns(msg.stamp)
         if stamp <= self.latest_stamp:
-            if _seconds(self.latest_stamp) - _seconds(stamp) < RESET_SECONDS:
+            if not is_reset(self.latest_stamp, stamp):
                 # a daemon's part of a tick that went on without it (a shared fleet)
                 if (kept := self.poses.get(stamp)) is not None:
                     kept.add(self._roster[1], msg)
@@ -126,34 +126,37 @@ class Mapper:
             self.waiting.clear()
         self.poses[stamp] = TickPoses(self._roster[1], msg)
         self.latest_stamp = stamp
-        oldest = _seconds(stamp) - ODOM_KEPT_S
-        while _seconds(next(iter(self.poses))) < oldest:
+        oldest = stamp - ODOM_KEPT_S * 1e9
+        while next(iter(self.poses)) < oldest:
             self.poses.pop(next(iter(self.poses)))
         waiting, self.waiting = self.waiting, []
         for scans in waiting:
             self.on_scans(scans)
 
+    def follows(self, ns: str) -> bool:
+        return self.robots is None or ns in self.robots
+
     def give_up_waiting(self) -> None:
         """The input ended: the scans still waiting for their odometry are counted as unpaired."""
         for msg in self.waiting:
-            self.unpaired += sum(1 for ns in msg.namespaces if self.robots is None or ns in self.robots)
+            self.unpaired += sum(map(self.follows, msg.namespaces))
         self.waiting.clear()
 
     def on_scans(self, msg: FleetScans) -> None:
-        stamp = (msg.stamp.sec, msg.stamp.nanosec)
+        stamp = stamp_ns(msg.stamp)
         poses = self.poses.get(stamp)
         if poses is None:
             # odometry comes in stamp order: once a later tick's has come, this one's never will
             if stamp > self.latest_stamp and len(self.waiting) < WAITING_KEPT:
                 self.waiting.append(msg)  # its tick's odometry is still on its way
             else:
-                self.unpaired += sum(1 for ns in msg.namespaces if self.robots is None or ns in self.robots)
+                self.unpaired += sum(map(self.follows, msg.namespaces))
             return
         if self.beams is None:
             self.beams = Beams(msg.angle_min, msg.angle_increment, msg.beams, msg.range_min, msg.range_max)
         rows = msg.ranges_array()
         for i, ns in enumerate(msg.namespaces):
-            pose = poses.get(ns) if self.robots is None or ns in self.robots else None
+            pose = poses.get(ns) if self.follows(ns) else None
             if pose is None:
                 continue
             ox, oy, _ = SCAN_OFFSET.get(self.models.get(ns, "burger"), SCAN_OFFSET["burger"])
@@ -180,7 +183,3 @@ class Mapper:
             if ns in self.latest:
                 self.latest[ns] = compose(motion, self.latest[ns])
             self.paths[ns] = [*self.backend.path(ns), self.latest.get(ns, (0.0, 0.0, 0.0))[:2]]
-
-
-def _seconds(stamp: tuple[int, int]) -> float:
-    return stamp[0] + stamp[1] * 1e-9

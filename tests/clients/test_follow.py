@@ -58,7 +58,7 @@ def test_a_lockstep_stop_takes_the_scans_still_behind_the_odometry() -> None:
     stop.set()
     follow(inbox, handle, stop, 0.0, lambda t: "", up_to_stop=up_to)
     assert taken == [("FleetOdometry", t) for t in range(1, 13)] + [("FleetScans", t) for t in (0, 6, 12)]
-    assert up_to.limit == (0, 12 * TICK_NS) and up_to.left_out == 0 and up_to.ended == "quiet"
+    assert up_to.limit == 12 * TICK_NS and up_to.left_out == 0 and up_to.ended == "quiet"
 
 
 def test_a_running_stop_ends_at_the_first_scan_after_the_clock() -> None:
@@ -134,7 +134,7 @@ def test_a_reset_during_the_follow_starts_the_streams_again() -> None:
     up_to = UpToStop(lambda: _stamp(5))
     for msg in (_odometry(3000), _scans(3000), _odometry(4), _scans(0)):
         assert up_to.keep(msg)
-    assert up_to.newest_odometry == (0, 4 * TICK_NS) and up_to.newest_scans == (0, 0)
+    assert up_to.newest_odometry == 4 * TICK_NS and up_to.newest_scans == 0
     inbox: queue.Queue[FleetOdometry | FleetScans] = queue.Queue()
     for msg in (_odometry(5), _scans(2), _odometry(6), _scans(7)):
         inbox.put(msg)
@@ -148,7 +148,7 @@ def test_ticks_whose_odometry_never_came_are_counted() -> None:
     up_to = UpToStop(lambda: _stamp(0), tick_s=TICK_NS / 1e9)
     for t in (1, 2, 5, 6, 6, 4, *range(7, 41), 1, 2):  # ... then a reset back to tick 1
         up_to.keep(_odometry(t))
-    assert up_to.missed_ticks == 2 and up_to.newest_odometry == (0, 2 * TICK_NS)
+    assert up_to.missed_ticks == 2 and up_to.newest_odometry == 2 * TICK_NS
     up_to.keep(_odometry(100))
     assert up_to.missed_ticks == 2 + 97
 
