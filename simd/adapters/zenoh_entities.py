@@ -98,6 +98,7 @@ class Interest:
 
     def __init__(self, pub: zenoh.Publisher, tally: Tally | None = None) -> None:
         self._lock = threading.Lock()
+        self._pub = pub
         self._tally = tally
         self.matching = False
         # on zenoh's own thread (it only sets a bool): a Python callback would get a thread of its
@@ -105,6 +106,12 @@ class Interest:
         handler = zenoh.handlers.Callback(self._changed, None, indirect=False)
         self._listener = pub.declare_matching_listener(handler)  # first, so no change is missed
         self._set(bool(pub.matching_status.matching))  # type: ignore[attr-defined]  # the stub says bool
+
+    def refresh(self) -> None:
+        """Ask zenoh now. The listener's news of a subscriber comes a moment after zenoh knows
+        of it (under load, after a request that follows the subscriber on the same link): a
+        lockstep client that subscribes and then steps must get that step's ticks."""
+        self._set(bool(self._pub.matching_status.matching))  # type: ignore[attr-defined]
 
     def _changed(self, status: zenoh.MatchingStatus) -> None:
         self._set(bool(status.matching))

@@ -128,6 +128,10 @@ class FleetAdapter:
                 return
             if isinstance(request, StepRequest):
                 request = self._for_here(request)
+        if isinstance(request, (StepRequest, ResumeRequest)):
+            self.publisher.refresh_interest()  # who subscribed just before: their ticks come
+            for wanted in self.navigation.interests:
+                wanted.refresh()
         if isinstance(request, ListRequest):  # looking, or a refusal: answered here, never behind a tick
             try:
                 listing.check(request)

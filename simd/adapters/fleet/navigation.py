@@ -58,9 +58,9 @@ class NavigationKeys:
         self._feedback_probe = session.declare_publisher(keys.navigate_feedback("*"))
         self.fleet_wanted = Interest(self.fleet_pub)
         self.feedback_wanted = Interest(self._feedback_probe)
+        self.interests = (self.fleet_wanted, self.feedback_wanted)  # asked again before a step
         self._entities: list[Any] = [
-            self.fleet_wanted,
-            self.feedback_wanted,
+            *self.interests,
             session.declare_queryable(keys.navigate("*"), self._route(NavigateRequest, ())),
             session.declare_queryable(keys.navigate_cancel("*"), self._route(CancelRequest, ("cancel",))),
             session.declare_queryable(keys.navigate_state("*"), self._answer_state),
