@@ -239,17 +239,17 @@ def test_lockstep_exploration_repeats_exactly(daemon_factory: Callable[..., Daem
     """Two runs, each on a fresh lockstep daemon with three robots in turtlebot3_house, write the
     same map to the byte: fleet-map fuses each step's scans in tick order whatever the network
     timing."""
-    maps = []
+    maps, said = [], []
     for run in range(2):
         d = daemon_factory("--lockstep", "--world", "turtlebot3_house")
         c = d.client()
         for i, (x, y) in enumerate([(-2.0, -0.5), (6.0, 1.0), (1.0, -3.0)]):
             c.spawn(f"tb3_{i}", x, y)
         stem = tmp_path / f"run{run}"
-        _explore(d, stem, 20)
+        said.append(_explore(d, stem, 20).stderr)
         maps.append(stem.with_name(f"run{run}.pgm").read_bytes())
         d.stop()
-    assert maps[0] == maps[1]
+    assert maps[0] == maps[1], said
     assert maps[0].count(b"\x00") > 200  # walls were mapped (occupied cells are black in a pgm)
 
 

@@ -77,6 +77,10 @@ def _goal_once(tool: StandIn, namespace: str, x: float) -> None:
     """A navigate_to_pose goal and a cancel of it, each answered by one daemon, once."""
     nav = "nav2_msgs/action/NavigateToPose"
     action = f"/{namespace}/navigate_to_pose/_action"
+    # as an rclpy ActionClient's wait_for_server: the robot's server reaches the tool through the
+    # router a moment after its spawn is answered
+    services = ((f"{action}/send_goal", f"{nav}_SendGoal"), (f"{action}/cancel_goal", "action_msgs/srv/CancelGoal"))
+    assert wait_until(lambda: all(tool.service_available(*s) for s in services), 10.0)
     goal_id = bytes(range(16))
     goal = msg(f"{nav}_Goal", pose=pose_stamped(x, 0.0), behavior_tree="")
     request = msg(f"{nav}_SendGoal_Request", goal_id=uuid_msg(goal_id), goal=goal)
