@@ -427,21 +427,20 @@ def _axis_steps(world: WorldGeometry, grid: Grid, need: float) -> tuple[B, B, B]
 
 
 def _component(stand: B, across: B, up: B, start: tuple[int, int] | None) -> int:
-    """How many cells the axis steps connect to ``start`` (0 when it cannot be stood on)."""
+    """How many cells the axis steps connect to ``start`` (0 when it cannot be stood on): the
+    cells a distance field over those steps reaches. A flood fill in Python took ~0.2 s a
+    grid on the 287 x 287 cells of the empty world, ~10 s for the 49 grids tried there before
+    its first goal; the field is a few ms."""
     if start is None or not stand[start]:
         return 0
     h, w = stand.shape
-    seen = np.zeros_like(stand)
-    seen[start] = True
-    todo = [start]
-    while todo:
-        r, c = todo.pop()
-        for rr, cc, ok in ((r, c + 1, c + 1 < w and across[r, c]), (r, c - 1, c > 0 and across[r, c - 1]),
-                           (r + 1, c, r + 1 < h and up[r, c]), (r - 1, c, r > 0 and up[r - 1, c])):  # fmt: skip
-            if ok and not seen[rr, cc]:
-                seen[rr, cc] = True
-                todo.append((rr, cc))
-    return int(seen.sum())
+    moves = np.zeros((h, w, len(MOVES)), dtype=bool)  # MOVES: right, up a row, left, down a row, ...
+    moves[:, :, 0] = across
+    moves[:, :, 1] = up
+    moves[:, 1:, 2] = across[:, :-1]
+    moves[1:, :, 3] = up[:-1, :]
+    reached = np.isfinite(dijkstra(moves.reshape(h * w, len(MOVES)), w, start[0] * w + start[1], 1.0))
+    return int(reached.sum())
 
 
 def _models() -> list[RobotModel]:

@@ -612,3 +612,47 @@ def test_cell_graph_distances_treat_blocked_cells_as_walls() -> None:
                 kept[c, k] = False
     kept16 = knights_from(kept, graph.width)  # and the knight's moves through what is left
     same_as_oracle(walled, bellman_ford(kept16, graph.width, goal, graph.size))
+
+
+def flood_fill(stand: npt.NDArray[np.bool_], across: npt.NDArray[np.bool_], up: npt.NDArray[np.bool_],
+               start: tuple[int, int]) -> int:  # fmt: skip
+    """The cells connected to ``start`` by the axis steps, counted one by one (the reference)."""
+    if not stand[start]:
+        return 0
+    h, w = stand.shape
+    seen, todo = {start}, [start]
+    while todo:
+        r, c = todo.pop()
+        for rr, cc, ok in ((r, c + 1, c + 1 < w and across[r, c]), (r, c - 1, c > 0 and across[r, c - 1]),
+                           (r + 1, c, r + 1 < h and up[r, c]), (r - 1, c, r > 0 and up[r - 1, c])):  # fmt: skip
+            if ok and (rr, cc) not in seen:
+                seen.add((rr, cc))
+                todo.append((rr, cc))
+    return len(seen)
+
+
+@settings(max_examples=200, derandomize=True, deadline=None)
+@given(data=st.data())
+def test_the_floor_connected_to_the_spawn_is_counted_as_a_flood_fill_counts_it(data: st.DataObject) -> None:
+    """How an open world's cells are laid (``CellGraph(align=True)``) is chosen by the floor
+    connected to its spawn, counted through a distance field: the same count as a flood fill."""
+    h, w = data.draw(st.integers(1, 12)), data.draw(st.integers(1, 12))
+    stand = np.array(data.draw(st.lists(st.booleans(), min_size=h * w, max_size=h * w)), dtype=bool).reshape(h, w)
+    steps = [np.array(data.draw(st.lists(st.booleans(), min_size=h * w, max_size=h * w)), dtype=bool).reshape(h, w)
+             for _ in range(2)]  # fmt: skip
+    across, up = steps
+    across[:, :-1] &= stand[:, :-1] & stand[:, 1:]  # a step joins two cells stood on, as _axis_steps makes them
+    across[:, -1] = False
+    up[:-1, :] &= stand[:-1, :] & stand[1:, :]
+    up[-1, :] = False
+    start = (data.draw(st.integers(0, h - 1)), data.draw(st.integers(0, w - 1)))
+    assert cells._component(stand, across, up, start) == flood_fill(stand, across, up, start)
+    assert cells._component(stand, across, up, None) == 0
+
+
+@pytest.mark.parametrize("world", ["turtlebot3_world", "turtlebot3_house", "empty"])
+def test_an_open_worlds_cells_are_laid_where_the_most_floor_joins_the_spawn(world: str) -> None:
+    graph = CellGraph(load_world(world), 0.35, align=True)
+    stand, across, up = cells._axis_steps(graph.world, graph.grid, cells.body_radius(BURGER))
+    spawn = graph.grid.cell(*graph.world.default_spawn[:2])
+    assert spawn is not None and cells._component(stand, across, up, spawn) == flood_fill(stand, across, up, spawn)
