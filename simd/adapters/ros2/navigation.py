@@ -148,13 +148,11 @@ class RosNavigation:
     # -- robots (the adapter's thread) -------------------------------------------------------------
 
     def add_robot(self, namespace: str, node: graph.Node) -> None:
+        """The robot's action server: its topics, then it is served, then its services' tokens
+        (as rmw_zenoh declares a service's token after its queryable: a client that sees the
+        server in the graph, as rclpy's ``wait_for_server`` does, gets an answer)."""
         p, tokens = self.p, []
         action = f"/{namespace}/{ACTION}"
-        for suffix in SERVICES:
-            part = self.parts[suffix]
-            topic = p.topic(part.name(action), part.typename)
-            token = node.entity_token(p.next_id(), part.kind, topic, part.qos)
-            tokens.append(p.session.liveliness().declare_token(token))
         fb, st = self.parts["feedback"], self.parts["status"]
         feedback = KeyPublisher(p, node, p.topic(fb.name(action), fb.typename), fb.qos, tokens)
         status = LatchedPublisher(p, node, p.topic(st.name(action), st.typename), st.qos, tokens, lazy=True)
@@ -165,6 +163,11 @@ class RosNavigation:
         frames = world_frames(namespace, self.layout.world_frame)
         self.robots[namespace] = RobotNav(namespace, frames, self.layout.pose_frame(namespace),
                                           feedback, status, plan, tokens)  # fmt: skip
+        for suffix in SERVICES:
+            part = self.parts[suffix]
+            topic = p.topic(part.name(action), part.typename)
+            token = node.entity_token(p.next_id(), part.kind, topic, part.qos)
+            tokens.append(p.session.liveliness().declare_token(token))
 
     def remove_robot(self, namespace: str) -> None:
         robot = self.robots.pop(namespace, None)
