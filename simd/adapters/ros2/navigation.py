@@ -151,7 +151,8 @@ class RosNavigation:
         """The robot's action server: its topics, then it is served, then its services' tokens
         (as rmw_zenoh declares a service's token after its queryable: a client that sees the
         server in the graph, as rclpy's ``wait_for_server`` does, gets an answer)."""
-        p, tokens = self.p, []
+        p = self.p
+        tokens: list[Any] = []
         action = f"/{namespace}/{ACTION}"
         fb, st = self.parts["feedback"], self.parts["status"]
         feedback = KeyPublisher(p, node, p.topic(fb.name(action), fb.typename), fb.qos, tokens)
