@@ -113,9 +113,13 @@ def start_daemon(
         try:
             with FleetClient(endpoint, prefix=prefix, timeout=1.0) as c:
                 c.clock()
-            return d
+                # its presence (P/daemons) is declared a moment after its clock answers
+                if c.daemons():
+                    return d
         except FleetError:
             time.sleep(0.05)
+            continue
+        time.sleep(0.01)
     d.stop()
     raise RuntimeError(f"simd did not answer within {wait} s:\n{d.log()}")
 
