@@ -134,6 +134,20 @@ class UpToStop:
             handling += last - got
 
 
+    def report(self, tool: str, queued: int) -> list[str]:
+        """The stderr lines a follower prints after its stop (``queued``: messages received and
+        not handled): what a second stop left out, a wait that hit its cap, ticks that never came."""
+        lines = []
+        if self.hurry.is_set():
+            lines.append(f"{tool}: a second stop: {queued} messages received were left out")
+        if self.ended == "cap":
+            lines.append(f"{tool}: stopped waiting for the messages sent before the stop after {CATCH_UP_S:g} s")
+        if self.missed_ticks:
+            lines.append(f"{tool}: {self.missed_ticks} ticks of the fleet's odometry did not come (lost on the way "
+                         "to a follower too slow for the fleet, or stepped without publishing)")  # fmt: skip
+        return lines
+
+
 def _newer(newest: int, stamp: int) -> int:
     """The newest stamp of a stream, which starts again from a stamp a reset took back."""
     return stamp if stamp > newest or is_reset(newest, stamp) else newest

@@ -30,7 +30,7 @@ import numpy as np
 
 from clients.api import FleetClient
 from clients.fleet_args import add_daemon_args
-from clients.follow import CATCH_UP_S, UpToStop, drain, follow, stop_on_signals
+from clients.follow import UpToStop, drain, follow, stop_on_signals
 from clients.mapping.explore import Explorer
 from clients.mapping.grid import LogOddsGrid
 from clients.mapping.mapper import Mapper
@@ -341,15 +341,8 @@ def main(argv: list[str] | None = None) -> int:
     if (back := mapper.backend) is not None:
         print(f"fleet-map: loop closure: keyframes {len(back.keyframes)}, closures {back.closures}, "
               f"optimisations {back.optimisations}, redraws {back.redraws}", flush=True)  # fmt: skip
-    if up_to_stop.hurry.is_set():
-        print(f"fleet-map: a second stop: {inbox.qsize()} messages received were left out",
-              file=sys.stderr, flush=True)  # fmt: skip
-    if up_to_stop.ended == "cap":
-        print(f"fleet-map: stopped waiting for the messages sent before the stop after {CATCH_UP_S:g} s",
-              file=sys.stderr, flush=True)  # fmt: skip
-    if up_to_stop.missed_ticks:
-        print(f"fleet-map: {up_to_stop.missed_ticks} ticks of odometry did not come (lost on the way to a follower "
-              "too slow for the fleet, or stepped without publishing)", file=sys.stderr, flush=True)  # fmt: skip
+    for line in up_to_stop.report("fleet-map", inbox.qsize()):
+        print(line, file=sys.stderr, flush=True)
     if mapper.unpaired:
         print(f"fleet-map: {mapper.unpaired} scans came without their tick's odometry (lost on the way) "
               "and are not in the map", file=sys.stderr, flush=True)  # fmt: skip

@@ -276,13 +276,8 @@ def main(argv: list[str] | None = None) -> int:
         drain(rec.inbox, rec.handle, up_to_stop)
         bag.close()
     print(summary(bag, wall), flush=True)
-    if up_to_stop is not None and up_to_stop.hurry.is_set():
-        print(f"fleet-record: a second stop: {rec.inbox.qsize()} messages received were left out",
-              file=sys.stderr, flush=True)  # fmt: skip
-    if up_to_stop is not None and up_to_stop.missed_ticks:
-        print(f"fleet-record: {up_to_stop.missed_ticks} ticks of the fleet's odometry did not come (lost on the way "
-              "to a recorder too slow for the fleet, or stepped without publishing)",
-              file=sys.stderr, flush=True)  # fmt: skip
+    for line in up_to_stop.report("fleet-record", rec.inbox.qsize()) if up_to_stop is not None else []:
+        print(line, file=sys.stderr, flush=True)
     return EXIT_OK
 
 

@@ -105,13 +105,13 @@ class Interest:
         # own, and the ROS adapter has four listeners per robot
         handler = zenoh.handlers.Callback(self._changed, None, indirect=False)
         self._listener = pub.declare_matching_listener(handler)  # first, so no change is missed
-        self._set(bool(pub.matching_status.matching))  # type: ignore[attr-defined]  # the stub says bool
+        self.refresh()
 
     def refresh(self) -> None:
         """Ask zenoh now. The listener's news of a subscriber comes a moment after zenoh knows
         of it (under load, after a request that follows the subscriber on the same link): a
         lockstep client that subscribes and then steps must get that step's ticks."""
-        self._set(bool(self._pub.matching_status.matching))  # type: ignore[attr-defined]
+        self._set(bool(self._pub.matching_status.matching))  # type: ignore[attr-defined]  # the stub says bool
 
     def _changed(self, status: zenoh.MatchingStatus) -> None:
         self._set(bool(status.matching))

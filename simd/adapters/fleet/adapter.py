@@ -129,9 +129,8 @@ class FleetAdapter:
             if isinstance(request, StepRequest):
                 request = self._for_here(request)
         if isinstance(request, (StepRequest, ResumeRequest)):
-            self.publisher.refresh_interest()  # who subscribed just before: their ticks come
-            for wanted in self.navigation.interests:
-                wanted.refresh()
+            for wanted in (*self.publisher.interests, *self.navigation.interests):
+                wanted.refresh()  # who subscribed just before the step gets its ticks
         if isinstance(request, ListRequest):  # looking, or a refusal: answered here, never behind a tick
             try:
                 listing.check(request)

@@ -114,7 +114,7 @@ class Publisher:
         self.scan_json_wanted = Interest(self._scan_json_probe)
         self.fleet_odom_wanted = Interest(self.fleet_odom_pub)
         self.fleet_scan_wanted = Interest(self.fleet_scan_pub)
-        self._interests = (
+        self.interests = (  # asked again before a step (Interest.refresh)
             self.odom_wanted,
             self.scan_wanted,
             self.odom_json_wanted,
@@ -123,7 +123,7 @@ class Publisher:
             self.fleet_scan_wanted,
         )
         self._entities: list[Any] = [
-            *self._interests,
+            *self.interests,
             session.declare_queryable(k.odom("*"), self._answer_odom),
             session.declare_queryable(k.scan("*"), self._answer_scan),
             self.clock_pub,
@@ -363,12 +363,6 @@ class Publisher:
     def wants_fleet_scan(self) -> bool:
         """True while somebody subscribes to ``P/scans``."""
         return bool(self.fleet_scan_wanted)
-
-    def refresh_interest(self) -> None:
-        """Whether anybody reads each topic, asked of zenoh now (before a step or a resume:
-        a subscriber declared just before it gets its ticks, see :meth:`Interest.refresh`)."""
-        for wanted in self._interests:
-            wanted.refresh()
 
     def publish_clock(self, payload: bytes) -> None:
         self.clock_pub.put(payload)
