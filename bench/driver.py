@@ -1,7 +1,8 @@
 """The wander driver: keeps every robot of the fleet moving while the benchmark measures.
 
 A fleet that stands still costs the daemon less than one that drives, so the benchmark drives
-all of them, the way a fleet controller would: one publisher per robot, 10 Hz, from one thread.
+all of them, the way a fleet controller would: one publisher per robot, 10 Hz, from one thread;
+or, ``batched``, every robot's command of a cycle in one message on ``P/commands``.
 """
 
 from __future__ import annotations
@@ -23,14 +24,21 @@ class Driver:
     """Drives every robot: a per-robot forward speed and a turn rate that changes every second,
     published at 10 Hz from one thread, all puts of a cycle back to back."""
 
-    def __init__(self, fleet: Fleet, names: Sequence[str], seed: int, rate_hz: float = DRIVE_HZ) -> None:
+    def __init__(
+        self, fleet: Fleet, names: Sequence[str], seed: int, rate_hz: float = DRIVE_HZ, batched: bool = False
+    ) -> None:
         import msgspec
 
         from protocol.messages import Twist, Vector3
 
         self._twist, self._vec = Twist, Vector3
         self._enc = msgspec.msgpack.Encoder()
-        self.pubs = [fleet.session.declare_publisher(f"{PREFIX}/{n}/cmd_vel", encoding=MSGPACK) for n in names]
+        self.names = list(names)
+        self.batched = batched
+        if batched:
+            self.pubs = [fleet.session.declare_publisher(f"{PREFIX}/commands", encoding=MSGPACK)]
+        else:
+            self.pubs = [fleet.session.declare_publisher(f"{PREFIX}/{n}/cmd_vel", encoding=MSGPACK) for n in names]
         self.rng = random.Random(seed)
         self.v = [self.rng.uniform(0.10, 0.22) for _ in names]
         self.period = 1.0 / rate_hz
@@ -45,6 +53,13 @@ class Driver:
 
     def _payloads(self) -> list[bytes]:
         t, v3, enc, rng = self._twist, self._vec, self._enc, self.rng
+        if self.batched:
+            import numpy as np
+
+            from protocol.control import PackedCommands
+
+            twist = np.array([(v, rng.uniform(-1.2, 1.2)) for v in self.v], dtype="<f8")
+            return [enc.encode(PackedCommands(names=self.names, twist=twist.tobytes()))]
         return [enc.encode(t(linear=v3(x=v), angular=v3(z=rng.uniform(-1.2, 1.2)))) for v in self.v]
 
     def _run(self) -> None:
@@ -73,7 +88,8 @@ class Driver:
     def stats(self) -> dict[str, Any]:
         return {
             "rate_hz": 1.0 / self.period,
-            "robots": len(self.pubs),
+            "robots": len(self.names),
+            "batched": self.batched,
             "cycles": self.cycles,
             "late_cycles": self.late,
             "burst_ms_median": (median(self.burst_s) or 0.0) * 1000,

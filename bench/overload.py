@@ -8,7 +8,8 @@ burgers (``--max-robots N+1``: one more spawn fits, the next is refused), starte
 filled; one subscriber process on the fleet topics (``P/odometry``, ``P/scans``); this process
 subscribes to a few robots' own topics (so the daemon encodes and puts every robot's odometry
 and scans, as it does whenever anybody follows one robot); a driver process puts ``cmd_vel`` to
-every robot at 10 Hz through one declared publisher per robot, as bench/driver.py does.
+every robot at 10 Hz through one declared publisher per robot, as bench/driver.py does (with
+``--driver batched``: every robot's command of a cycle in one message on ``P/commands``).
 
 Then two phases, each a loop of requests one after another as a user's tools send them: the
 clock, the robot list (``robots``: all of it; ``named``: one robot by name, as ``fleet list
@@ -58,12 +59,17 @@ BOUND_S = 0.100
 KINDS = ("clock", "robots", "named", "page", "world", "spawn", "spawn_refused", "delete", "pause", "resume")
 #: Records in a page of the list (``page``: what a tool showing a big fleet asks for).
 PAGE = 1000
+#: What ``--driver`` puts, for the report.
+DRIVERS = {
+    "robots": "a publisher per robot, 10 Hz",
+    "batched": "every robot's command in one message on P/commands, 10 Hz",
+}
 #: Robots of the fleet whose own topics this process follows (the daemon then encodes and puts
 #: every robot's odometry and scans: its per-robot topics are on).
 WATCHED = 4
 
 
-def driver_main(endpoint: str, robots: int, seed: int) -> int:
+def driver_main(endpoint: str, robots: int, seed: int, batched: bool) -> int:
     """A separate process: drives robots r0..r{robots-1} at 10 Hz (bench/driver.py); prints
     ``READY`` once its publishers are declared, stops on EOF of stdin or SIGTERM."""
     from bench.driver import Driver
@@ -71,7 +77,7 @@ def driver_main(endpoint: str, robots: int, seed: int) -> int:
     signal.signal(signal.SIGTERM, raise_exit)
     fleet = Fleet(endpoint)
     try:
-        driver = Driver(fleet, [f"r{i}" for i in range(robots)], seed)
+        driver = Driver(fleet, [f"r{i}" for i in range(robots)], seed, batched=batched)
         driver.start()
         print("READY", flush=True)
         sys.stdin.read()
@@ -85,11 +91,11 @@ def driver_main(endpoint: str, robots: int, seed: int) -> int:
 class DriverProc:
     """The driver process, from this side."""
 
-    def __init__(self, endpoint: str, robots: int, seed: int, log: Path) -> None:
+    def __init__(self, endpoint: str, robots: int, seed: int, log: Path, how: str = "robots") -> None:
         self.log = log.open("w")
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "bench.overload", "--role", "driver", "--endpoint", endpoint,
-             "--robots", str(robots), "--seed", str(seed)],
+             "--robots", str(robots), "--seed", str(seed), "--driver", how],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.log, text=True, cwd=ROOT,
             env={**os.environ, "PYTHONUNBUFFERED": "1"}, start_new_session=True, preexec_fn=PREEXEC,
         )  # fmt: skip
@@ -213,7 +219,7 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
                 for topic in ("odom", "scan"):
                     fleet.session.declare_subscriber(f"{PREFIX}/r{i}/{topic}",
                                                      lambda s: watched.__setitem__(0, watched[0] + 1))  # fmt: skip
-            driver = DriverProc(daemon.endpoint, n, args.seed, tmp / f"driver-{n}.log")
+            driver = DriverProc(daemon.endpoint, n, args.seed, tmp / f"driver-{n}.log", args.driver)
             stack.callback(driver.stop)
             driver.wait_ready(120.0)
             pen = arena.extra
@@ -310,13 +316,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--gap", type=float, default=0.1, help="seconds between two rounds (default 0.1)")
     p.add_argument("--timeout", type=float, default=10.0, help="a request unanswered this long is lost")
     p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--driver", default="robots", choices=("robots", "batched"),
+                   help="how the driver sends: a publisher per robot (default), or every command of a "
+                        "cycle in one message on P/commands")  # fmt: skip
     p.add_argument("--out", default="bench-out", help="directory for overload.json (default: %(default)s)")
     p.add_argument("--role", default="bench", choices=("bench", "driver"), help=argparse.SUPPRESS)
     p.add_argument("--endpoint", help=argparse.SUPPRESS)
     p.add_argument("--robots", type=int, default=0, help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.role == "driver":
-        return driver_main(args.endpoint, args.robots, args.seed)
+        return driver_main(args.endpoint, args.robots, args.seed, args.driver == "batched")
     if any(n < 1 for n in args.sizes):
         p.error("--sizes must be at least 1")
     signal.signal(signal.SIGTERM, raise_exit)
@@ -329,7 +338,9 @@ def main(argv: list[str] | None = None) -> int:
             runs.append(run(n, args, Path(tmp), progress))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "overload.json").write_text(json.dumps({"machine": info, "bound_ms": BOUND_S * 1e3, "runs": runs}, indent=1))
+    record = {"machine": info, "bound_ms": BOUND_S * 1e3, "driver": args.driver, "runs": runs}
+    (out / "overload.json").write_text(json.dumps(record, indent=1))
+    print(f"driver: {DRIVERS[args.driver]}")
     print(table(runs))
     worst = [v["p99_ms"] or 0.0 for r in runs if r["status"] == "ok" for ph in ("paused", "running")
              for v in r[ph].values()]  # fmt: skip

@@ -129,6 +129,7 @@ class FleetClient:
             ) from None
         self._subs: list[Subscription] = []
         self._cmd_pubs: dict[str, zenoh.Publisher] = {}
+        self._batch_pub: zenoh.Publisher | None = None
         self._cmd_lock = threading.Lock()
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -138,6 +139,7 @@ class FleetClient:
             s.close()
         self._subs.clear()
         self._cmd_pubs.clear()  # the session's close undeclares them
+        self._batch_pub = None
         self.session.close()
 
     def __enter__(self) -> FleetClient:
@@ -497,6 +499,31 @@ class FleetClient:
                         key, encoding="application/msgpack"
                     )
         pub.put(encode(msg))
+
+    def drive_many(self, namespaces: Sequence[str], values: npt.ArrayLike) -> None:
+        """Put one command to each of many robots in one message, on ``P/commands``: ``values``
+        of shape (n, 2), (linear, angular) for each namespace, as :meth:`step`'s ``commands``.
+        The same as a :meth:`drive` for each robot (the watchdog, the limits), for the price of
+        one put: a program driving thousands of robots at 10 Hz otherwise spends a core putting
+        tens of thousands of messages a second, and the daemon one decoding them (docs/clients.md).
+        Names no daemon has are ignored, as commands for unknown robots are; a daemon drops a
+        batch it cannot take whole (logged, and counted in the clock's ``dropped_commands``),
+        so what is wrong with it is refused here first."""
+        names = list(namespaces)
+        twist = np.ascontiguousarray(values, dtype="<f8")
+        if twist.shape != (len(names), 2):
+            raise ValueError(f"values must have shape ({len(names)}, 2), got {twist.shape}")
+        if not np.isfinite(twist).all():
+            raise ValueError("values must be finite")
+        if len(set(names)) != len(names):
+            raise ValueError("a namespace is given more than once")
+        if self._batch_pub is None:
+            with self._cmd_lock:
+                if self._batch_pub is None:
+                    self._batch_pub = self.session.declare_publisher(
+                        self.keys.commands(), encoding="application/msgpack"
+                    )
+        self._batch_pub.put(encode(PackedCommands(names=names, twist=twist.tobytes())))
 
     def stop(self, namespace: str) -> None:
         self.drive(namespace, 0.0, 0.0)

@@ -83,7 +83,7 @@ def acl(prefix: str, drivers: Sequence[str], daemons: Sequence[str] = ()) -> dic
         {"id": "control", "permission": "allow", "flows": ["ingress"], "messages": ["query"],
          "key_exprs": [f"{p}/{k}" for k in CONTROL_QUERIES]},
         {"id": "drive-any", "permission": "allow", "flows": ["ingress"], "messages": ["put"],
-         "key_exprs": [f"{p}/*/cmd_vel"]},
+         "key_exprs": [f"{p}/*/cmd_vel", f"{p}/commands"]},
         {"id": "presence", "permission": "allow", "flows": ["ingress"],
          "messages": ["declare_liveliness_subscriber", "liveliness_query"], "key_exprs": [f"{p}/*/alive"]},
     ]  # fmt: skip

@@ -13,6 +13,7 @@ key                    declared by simd as         payload     reply / notes
 ``P/sim/reset``        queryable                   ResetRequest   Clock
 ``P/sim/step``         queryable                   StepRequest    StepReply, after the ticks ran
 ``P/<ns>/cmd_vel``     subscriber                  Twist
+``P/commands``         subscriber                  PackedCommands  many robots' cmd_vel in one message
 ``P/<ns>/odom``        publisher 30 Hz + queryable Odometry    a get returns the latest message
 ``P/<ns>/scan``        publisher 5 Hz + queryable  LaserScan   a get returns the latest message
 ``P/<ns>/alive``       liveliness token            --          present while the robot lives
@@ -132,6 +133,11 @@ class Keys:
 
     def cmd_vel(self, ns: str) -> str:
         return self._k(ns, "cmd_vel")
+
+    def commands(self) -> str:
+        """Many robots' commands in one message (``PackedCommands``): what a program driving a
+        big fleet puts instead of one ``cmd_vel`` per robot."""
+        return self._k("commands")
 
     def odom(self, ns: str) -> str:
         return self._k(ns, "odom")

@@ -10,13 +10,16 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_a_small_fleet_is_asked_every_kind_of_request(tmp_path: Path) -> None:
+@pytest.mark.parametrize("driver", ["robots", "batched"])
+def test_a_small_fleet_is_asked_every_kind_of_request(tmp_path: Path, driver: str) -> None:
     proc = subprocess.run(
         [sys.executable, "-m", "bench.overload", "--sizes", "30", "--paused-s", "1", "--running-s", "2",
-         "--settle", "1", "--out", str(tmp_path)],
+         "--settle", "1", "--out", str(tmp_path), "--driver", driver],
         cwd=ROOT, capture_output=True, text=True, timeout=240, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
     out = proc.stdout
@@ -30,6 +33,8 @@ def test_a_small_fleet_is_asked_every_kind_of_request(tmp_path: Path) -> None:
         assert all(v["n"] >= 1 and v["lost"] == 0 for v in run[phase].values()), run[phase]
     assert not run["unexpected"], run["unexpected"]  # each spawn accepted, each one beyond the limit refused
     assert run["rtf"] > 0 and run["watched_messages"] > 0
+    assert data["driver"] == driver and run["driver"]["batched"] == (driver == "batched")
+    assert run["driver"]["robots"] == 30 and run["driver"]["cycles"] > 0
     # the machine's own wake-up lateness beside each phase, from a process that only naps
     assert all(run["machine"][phase]["n"] > 10 for phase in ("paused", "running")), run["machine"]
     assert re.search(r"^\| 30 \| running \| [\d.]+ \| [\d.]+ \| [\d.]+ \|$", out, re.MULTILINE), out

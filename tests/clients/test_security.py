@@ -75,15 +75,18 @@ def _refused(call: object) -> FleetError:
     return e.value
 
 
-def _drives(c: FleetClient, op: FleetClient, ns: str, tries: int = 8) -> bool:
-    """Whether ``c``'s cmd_vel moves ``ns``: a command, a short step, again until it moves or
-    ``tries`` are used (a put is not acknowledged, and a loaded machine routes it late); the
-    robot is stopped again after."""
+def _drives(c: FleetClient, op: FleetClient, ns: str, tries: int = 8, batched: bool = False) -> bool:
+    """Whether ``c``'s cmd_vel (``batched``: a batch on ``P/commands``) moves ``ns``: a command,
+    a short step, again until it moves or ``tries`` are used (a put is not acknowledged, and a
+    loaded machine routes it late); the robot is stopped again after."""
     start = op.robot(ns)
     assert start is not None
     moved = False
     for _ in range(tries):
-        c.drive(ns, 0.2, 0.5)
+        if batched:
+            c.drive_many([ns], [(0.2, 0.5)])
+        else:
+            c.drive(ns, 0.2, 0.5)
         time.sleep(0.1)
         op.step(2)
         now = op.robot(ns)
@@ -109,6 +112,7 @@ def test_the_operator_does_everything(secured: Secured) -> None:
         r = op.spawn("extra", -2.0, 2.0)
         assert r.name == "extra"
         assert _drives(op, op, "tb3_0")
+        assert _drives(op, op, "tb3_1", batched=True)
         op.pause()
         op.delete("extra")
         assert sorted(x.name for x in op.robots()) == ["tb3_0", "tb3_1"]
@@ -140,6 +144,7 @@ def test_a_driver_drives_and_reads_its_own_robot_only(secured: Secured) -> None:
         assert _drives(dr, op, "tb3_0")
         assert _steps_until(op, mine) and not theirs.is_set()
         assert not _drives(dr, op, "tb3_1")
+        assert not _drives(dr, op, "tb3_0", batched=True)  # a batch could name any robot: not a driver's
         _refused(lambda: dr.spawn("mine_too", -2.0, -2.0))
         _refused(lambda: dr.pause())
 

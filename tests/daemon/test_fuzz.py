@@ -1,6 +1,6 @@
 """Property-based fuzzing of every key the daemon listens on, in both encodings.
 
-Hypothesis draws a key (every queryable, a robot's ``cmd_vel`` and a ghost's) and a body:
+Hypothesis draws a key (every queryable, a robot's ``cmd_vel`` and a ghost's, ``commands``) and a body:
 random bytes, or a JSON / MessagePack document built from the protocol's own field names with
 values of every type, nested, huge, non-finite or invalid UTF-8. After each one: the daemon is
 alive; a query got an answer, and an error answer is structured (a known code, never
@@ -31,10 +31,10 @@ from tests.zraw import get, raw_session
 
 EXAMPLES = int(os.environ.get("FLEETSIM_FUZZ_EXAMPLES", "300"))
 QUERY_KEYS = ["spawn", "delete", "robots", "world", "clock", "sim/pause", "sim/resume", "sim/reset", "sim/step"]
-PUT_KEYS = ["tb3_0/cmd_vel", "ghost/cmd_vel"]
+PUT_KEYS = ["tb3_0/cmd_vel", "ghost/cmd_vel", "commands"]
 #: the protocol's field names, so that documents reach past "unknown field" into the decoders
 FIELDS = ["name", "namespace", "model", "x", "y", "yaw", "ticks", "seed", "cmd_vel", "observe", "linear", "angular",
-          "z", "format", "robots", "tb3_0", "names", "after", "limit"]  # fmt: skip
+          "z", "format", "robots", "tb3_0", "names", "after", "limit", "twist", "commands"]  # fmt: skip
 KNOWN_CODES = {c.value for c in ErrorCode} - {ErrorCode.INTERNAL.value}
 
 scalars = st.one_of(

@@ -1,4 +1,5 @@
-"""cmd_vel in: the newest command per namespace, whatever arrives on ``P/*/cmd_vel``.
+"""cmd_vel in: the newest command per namespace, whatever arrives on ``P/*/cmd_vel`` or, many
+robots' at once, on ``P/commands``.
 
 Samples wait in a zenoh ring channel that the simulation thread drains between ticks: no
 Python callback thread wakes up per command (at 1 000 robots driven at 10 Hz that thread
@@ -16,6 +17,18 @@ fleet, everybody's): at 4 000 robots driven at 2 Hz that matching took a core, a
 daemon's answers queued behind the commands on the same link for seconds (its clock query
 went unanswered). A session that holds only the cmd_vel subscriber matches against almost
 nothing: the same load costs the daemon a few percent and its clock is answered in ms.
+
+``P/commands`` carries many robots' commands in one message (``PackedCommands``: namespaces and
+a float64 row of (linear.x, angular.z) each, as a step's ``commands``). A program driving
+thousands of robots at 10 Hz otherwise declares a publisher per robot and puts tens of thousands
+of samples a second: in Python that is a core of its own, the daemon decodes each sample, and
+zenoh matches every publisher declared under ``P/`` against every robot's keys (10 000 of them
+kept the daemon's receiving thread busy for ~30 s after such a driver started). A batch is
+applied whole or not at all: one that does not decode, whose ``twist`` is not 16 bytes a name,
+that names a robot twice or holds a number that is not finite is dropped and counted, like a
+bad ``cmd_vel``; names of no robot here are ignored (another daemon of a shared fleet has them).
+Within one drain the batches come after the single commands, so a robot commanded both ways in
+one tick takes the batch's.
 """
 
 from __future__ import annotations
@@ -26,9 +39,11 @@ import time
 from collections.abc import Callable
 
 import msgspec
+import numpy as np
 import zenoh
 
-from protocol.codec import decode
+from protocol.codec import MAX_PAYLOAD_BYTES, decode
+from protocol.control import PackedCommands
 from protocol.errors import FleetError
 from protocol.keys import Keys
 from protocol.messages import Twist
@@ -37,6 +52,9 @@ log = logging.getLogger(__name__)
 
 #: cmd_vel samples buffered between two drains (a 30 Hz tick); beyond it the oldest go.
 CMD_VEL_RING = 65536
+#: ``P/commands`` batches buffered between two drains; beyond it the oldest go. Many, so that a
+#: driver that splits its fleet over several batches a tick loses none while ticks are slow.
+COMMANDS_RING = 64
 #: A Twist is ~100 bytes; anything much larger is not one.
 MAX_TWIST_BYTES = 64 << 10
 #: cmd_vel keys whose namespaces are kept (parsed once); beyond it the table starts again.
@@ -53,7 +71,7 @@ def command_session_needed(mode: str) -> bool:
 
 
 class CommandIntake:
-    """The cmd_vel subscriber and the newest-command-per-namespace table."""
+    """The cmd_vel and batch subscribers and the newest-command-per-namespace table."""
 
     def __init__(self, session: zenoh.Session, keys: Keys, clock: Callable[[], float] = time.monotonic) -> None:
         self.keys = keys
@@ -65,7 +83,9 @@ class CommandIntake:
         self._unlogged = 0
         self._last_reason = ""
         self._ns_of: dict[str, str | None] = {}  # cmd_vel key -> its namespace (None: not a robot's)
+        self._packed = msgspec.msgpack.Decoder(PackedCommands)
         self._sub = session.declare_subscriber(keys.cmd_vel("*"), zenoh.handlers.RingChannel(CMD_VEL_RING))
+        self._batches = session.declare_subscriber(keys.commands(), zenoh.handlers.RingChannel(COMMANDS_RING))
 
     def _twist(self, payload: bytes) -> tuple[float, float]:
         """(linear x, angular z) of a Twist body; raises on anything else."""
@@ -79,6 +99,28 @@ class CommandIntake:
         if not (math.isfinite(v) and math.isfinite(w)):
             raise ValueError("linear.x and angular.z must be finite")
         return v, w
+
+    def _batch(self, payload: bytes) -> tuple[list[str], list[float], list[float]]:
+        """(namespaces, linear x, angular z) of a ``P/commands`` body; raises on anything else."""
+        if len(payload) > MAX_PAYLOAD_BYTES:
+            raise ValueError(f"{len(payload)} bytes is more than a batch may hold ({MAX_PAYLOAD_BYTES})")
+        if payload[:1] and payload[0] in b" \t\r\n{":
+            batch = decode(payload, PackedCommands, max_bytes=MAX_PAYLOAD_BYTES)
+        else:
+            batch = self._packed.decode(payload)
+        names = batch.names
+        if len(batch.twist) != 16 * len(names):
+            got = len(batch.twist)
+            raise ValueError(f"twist must hold 2 float64 for each of the {len(names)} names, got {got} bytes")
+        values = np.frombuffer(batch.twist, dtype="<f8")
+        if not np.isfinite(values).all():
+            bad = names[int(np.argmin(np.isfinite(values))) // 2]
+            raise ValueError(f"the command for {bad!r} is not finite")
+        if len(set(names)) != len(names):
+            seen: set[str] = set()
+            twice = next(n for n in names if n in seen or seen.add(n))  # type: ignore[func-returns-value]
+            raise ValueError(f"{twice!r} is named more than once")
+        return names, values[0::2].tolist(), values[1::2].tolist()
 
     def poll(self, most: int | None = None) -> bool:
         """Move waiting samples into the table (simulation thread), at most ``most`` of them;
@@ -104,6 +146,15 @@ class CommandIntake:
                 self._drop(key, str(e))
             except Exception as e:  # whatever hostile bytes provoke, they never stop the tick
                 self._drop(key, f"{type(e).__name__}: {e}")
+        while left and (sample := self._batches.try_recv()) is not None:
+            left -= 1
+            try:
+                names, v, w = self._batch(sample.payload.to_bytes())
+                commands.update(zip(names, zip(v, w, strict=True), strict=True))
+            except (FleetError, ValueError, RecursionError, msgspec.MsgspecError) as e:
+                self._drop(str(sample.key_expr), str(e))
+            except Exception as e:
+                self._drop(str(sample.key_expr), f"{type(e).__name__}: {e}")
         return left == 0
 
     def _drop(self, key: str, reason: str) -> None:
@@ -126,7 +177,8 @@ class CommandIntake:
         return cmds
 
     def close(self) -> None:
-        try:
-            self._sub.undeclare()
-        except zenoh.ZError:
-            pass
+        for sub in (self._sub, self._batches):
+            try:
+                sub.undeclare()
+            except zenoh.ZError:
+                pass
