@@ -35,6 +35,8 @@ def test_a_small_fleet_is_asked_every_kind_of_request(tmp_path: Path, driver: st
     assert run["rtf"] > 0 and run["watched_messages"] > 0
     assert data["driver"] == driver and run["driver"]["batched"] == (driver == "batched")
     assert run["driver"]["robots"] == 30 and run["driver"]["cycles"] > 0
+    # the fleet was driven before the running phase (the daemon keeps a command: --cmd-timeout 0)
+    assert run["moving_at_start"] >= 27 and run["moving_at_end"] >= 27, run
     # the machine's own wake-up lateness beside each phase, from a process that only naps
     assert all(run["machine"][phase]["n"] > 10 for phase in ("paused", "running")), run["machine"]
     assert re.search(r"^\| 30 \| running \| [\d.]+ \| [\d.]+ \| [\d.]+ \|$", out, re.MULTILINE), out
