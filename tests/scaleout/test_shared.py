@@ -258,3 +258,27 @@ def test_a_name_deleted_is_free_again_at_once(fleet: tuple[str, dict[str, subpro
                 record = c.spawn(n, float(round_ + 1), float(names.index(n)))
                 assert (record.name, record.daemon) == (n, owner(n, ["a", "b"]))
         assert sorted(r.name for r in c.robots()) == sorted(names)
+
+
+def test_one_batch_of_commands_drives_robots_on_every_daemon(
+    fleet: tuple[str, dict[str, subprocess.Popen[str]]],
+) -> None:
+    """P/commands reaches every daemon through the router; each takes its own robots' rows."""
+    endpoint, _ = fleet
+    names = [f"r{i}" for i in range(20)]
+    on_a = next(n for n in names if owner(n, ["a", "b"]) == "a")
+    on_b = next(n for n in names if owner(n, ["a", "b"]) == "b")
+    with FleetClient(endpoint, timeout=5.0) as c:
+        c.spawn(on_a, 0.0, 0.0)
+        c.spawn(on_b, 0.0, 3.0)
+
+        def both_driven() -> bool:
+            c.drive_many([on_a, on_b, "ghost"], [(0.2, 0.0), (0.0, 1.0), (0.1, 0.0)])  # again: the watchdog
+            robots = {r.name: r for r in c.robots()}
+            return robots[on_a].linear_velocity > 0.1 and robots[on_b].angular_velocity > 0.5
+
+        assert wait_until(both_driven, 10.0)
+        robots = {r.name: r for r in c.robots()}
+        assert robots[on_a].daemon == "a" and robots[on_b].daemon == "b"
+        assert abs(robots[on_a].angular_velocity) < 1e-6 and abs(robots[on_b].linear_velocity) < 1e-6
+        assert c.clock().dropped_commands == 0  # a row for a robot of the other daemon is no bad command
