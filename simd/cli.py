@@ -11,8 +11,10 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Mapping
+import threading
+from collections.abc import Callable, Mapping
 from types import FrameType
+from typing import TYPE_CHECKING
 
 from fleetcommon.zenoh_config import add_zenoh_args
 from protocol.control import DEFAULT_DAEMON_ID
@@ -22,6 +24,9 @@ from protocol.names import check_name
 from protocol.ros_domain import domain_id
 from simd.adapters.zenoh_entities import zenoh_too_old
 from simd.daemon import CheckedFlags, Refused, build_daemon
+
+if TYPE_CHECKING:  # imported for real only once the flags are checked (it picks the fast paths)
+    from simd.engine.engine import Engine
 
 log = logging.getLogger("simd")
 
@@ -274,6 +279,25 @@ def check_flags(args: argparse.Namespace, env: Mapping[str, str]) -> CheckedFlag
     return CheckedFlags(args, keys, world, fast, ros_domain, ros_distro)
 
 
+def stopping_handler(engine: Engine) -> Callable[[int, FrameType | None], None]:
+    """The SIGINT/SIGTERM handler: stop the engine from a thread of its own. A handler runs on
+    the main thread, which is the simulation thread, between two bytecodes, possibly inside a
+    lock that stopping takes (the request queue's, whose ``get`` the loop is in): a daemon
+    stopped on the spot there waited for itself forever and ignored SIGTERM (seen once in the
+    suite, a lockstep daemon behind a router)."""
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        name = signal.Signals(signum).name
+        threading.Thread(target=_stop, args=(engine, name), name="stop", daemon=True).start()
+
+    return on_signal
+
+
+def _stop(engine: Engine, signal_name: str) -> None:
+    log.info("received %s, stopping", signal_name)
+    engine.stop()
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     too_old = zenoh_too_old()
@@ -295,10 +319,7 @@ def main(argv: list[str] | None = None) -> int:
             daemon = build_daemon(flags, teardown)
             engine = daemon.engine
 
-            def on_signal(signum: int, frame: FrameType | None) -> None:
-                log.info("received %s, stopping", signal.Signals(signum).name)
-                engine.stop()
-
+            on_signal = stopping_handler(engine)
             signal.signal(signal.SIGINT, on_signal)
             signal.signal(signal.SIGTERM, on_signal)
             daemon.announce()

@@ -5,6 +5,7 @@ here waits on the wall clock."""
 from __future__ import annotations
 
 import math
+import signal
 import threading
 from collections.abc import Mapping
 
@@ -472,3 +473,19 @@ def test_a_paused_engine_keeps_draining_commands_while_requests_keep_coming() ->
     assert e.sim.tick == 0  # paused: no tick took the commands
     most = max(r.most_held, r.held())  # (what still waits counts too)
     assert most <= rate * (sim.config.dt + 0.05), most  # a tick period and a request's worth, not 2 s
+
+
+def test_a_stop_signal_that_lands_inside_the_request_queue_still_stops_the_loop() -> None:
+    """SIGTERM's handler runs on the simulation thread between two bytecodes, maybe while the
+    loop holds its request queue's lock: stopping there must not take that lock on the spot
+    (a daemon once waited for itself forever and ignored SIGTERM)."""
+    from simd.cli import stopping_handler
+
+    e, _ = engine(lockstep=True)
+    handler = stopping_handler(e)
+    thread = threading.Thread(target=e.run)
+    thread.start()
+    with e._inbox.mutex:  # as if the signal came while the loop was inside the queue's get
+        handler(signal.SIGTERM, None)  # returns at once: the stop waits for the lock elsewhere
+    thread.join(10.0)
+    assert not thread.is_alive() and e.stop_event.is_set()
