@@ -466,11 +466,7 @@ class FleetClient:
         cmds = {ns: Twist(linear=Vector3(x=v), angular=Vector3(z=w)) for ns, (v, w) in (cmd_vel or {}).items()}
         arrays = None
         if commands is not None:
-            names, values = commands
-            twist = np.ascontiguousarray(values, dtype="<f8")
-            if twist.shape != (len(names), 2):
-                raise ValueError(f"commands: values must have shape ({len(names)}, 2), got {twist.shape}")
-            arrays = PackedCommands(names=list(names), twist=twist.tobytes())
+            arrays = _packed(*commands, "commands")
         req = StepRequest(
             ticks=ticks, cmd_vel=cmds, commands=arrays, observe=list(observe), publish=publish, packed=packed
         )
@@ -509,13 +505,12 @@ class FleetClient:
         Names no daemon has are ignored, as commands for unknown robots are; a daemon drops a
         batch it cannot take whole (logged, and counted in the clock's ``dropped_commands``),
         so what is wrong with it is refused here first."""
-        names = list(namespaces)
-        twist = np.ascontiguousarray(values, dtype="<f8")
-        if twist.shape != (len(names), 2):
-            raise ValueError(f"values must have shape ({len(names)}, 2), got {twist.shape}")
-        if not np.isfinite(twist).all():
-            raise ValueError("values must be finite")
-        if len(set(names)) != len(names):
+        batch = _packed(namespaces, values, "values")
+        try:
+            batch.rows()
+        except FleetError as e:
+            raise ValueError(e.message) from None
+        if len(set(batch.names)) != len(batch.names):
             raise ValueError("a namespace is given more than once")
         if self._batch_pub is None:
             with self._cmd_lock:
@@ -523,7 +518,7 @@ class FleetClient:
                     self._batch_pub = self.session.declare_publisher(
                         self.keys.commands(), encoding="application/msgpack"
                     )
-        self._batch_pub.put(encode(PackedCommands(names=names, twist=twist.tobytes())))
+        self._batch_pub.put(encode(batch))
 
     def stop(self, namespace: str) -> None:
         self.drive(namespace, 0.0, 0.0)
@@ -780,3 +775,12 @@ def wait_until(predicate: Callable[[], bool], timeout: float, interval: float = 
             return True
         time.sleep(interval)
     return predicate()
+
+
+def _packed(names: Iterable[str], values: npt.ArrayLike, what: str) -> PackedCommands:
+    """Commands as arrays (a row of (linear, angular) per name) packed as the wire has them."""
+    names = list(names)
+    twist = np.ascontiguousarray(values, dtype="<f8")
+    if twist.shape != (len(names), 2):
+        raise ValueError(f"{what}: values must have shape ({len(names)}, 2), got {twist.shape}")
+    return PackedCommands(names=names, twist=twist.tobytes())

@@ -2,8 +2,13 @@
 
 from __future__ import annotations
 
-import msgspec
+import math
 
+import msgspec
+import numpy as np
+import numpy.typing as npt
+
+from protocol.errors import ErrorCode, FleetError
 from protocol.messages import LaserScan, Odometry, Time, Twist
 
 MODELS = ("burger", "waffle", "waffle_pi")
@@ -40,11 +45,37 @@ MAX_STEP_TICKS = 1_000_000
 
 
 class PackedCommands(msgspec.Struct, kw_only=True):
-    """Commands for many robots at once (``StepRequest.commands``): ``names`` are namespaces,
-    ``twist`` float64 little-endian, a row of (linear.x, angular.z) for each, in order."""
+    """Commands for many robots at once (``StepRequest.commands``, ``P/commands``): ``names``
+    are namespaces, ``twist`` float64 little-endian, a row of (linear.x, angular.z) for each,
+    in order."""
 
     names: list[str]
     twist: bytes
+
+    def rows(self, field: str = "commands") -> npt.NDArray[np.float64]:
+        """The (n, 2) rows, checked as a daemon takes them: ``twist`` holds 16 bytes a name
+        (else ``invalid_value``) and every number is finite (else ``non_finite``, naming the
+        robot). A name given twice is the caller's to refuse (a step finds it with the rows)."""
+        n, got = len(self.names), len(self.twist)
+        if got != 16 * n:
+            why = f"{field}.twist must hold 2 float64 for each of the {n} names, got {got} bytes"
+            raise FleetError(ErrorCode.INVALID_VALUE, why, field)
+        values = np.frombuffer(self.twist, dtype="<f8").astype(np.float64).reshape(n, 2)
+        check_finite_commands(self.names, values, field)
+        return values
+
+
+#: up to this many values are checked in Python: fewer than numpy's two calls cost
+FEW_VALUES = 32
+
+
+def check_finite_commands(names: list[str], values: npt.NDArray[np.float64], field: str) -> None:
+    """Refuse (``non_finite``, naming the first robot) commands ``values`` (a row per name) that
+    hold a number that is not finite."""
+    few = values.size <= FEW_VALUES
+    if not (all(map(math.isfinite, values.flat)) if few else bool(np.isfinite(values).all())):
+        ns = names[int(np.argmin(np.isfinite(values).all(axis=1)))]
+        raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
 
 
 class StepRequest(msgspec.Struct, kw_only=True):

@@ -10,7 +10,6 @@ observations map to the robot table's rows; when it runs is the engine's busines
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -18,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fleetcommon.arrays import F64, I64
-from protocol.control import MAX_STEP_TICKS, Clock, StepRequest
+from protocol.control import MAX_STEP_TICKS, Clock, StepRequest, check_finite_commands
 from protocol.errors import ErrorCode, FleetError
 from simd.core.robots import RobotTable
 from simd.core.sim import Simulation
@@ -157,45 +156,25 @@ class StepPlanner:
     ) -> tuple[list[str], F64, F64]:
         """A step's commands (``given``, else the request's), checked, as namespaces and (v,
         w) columns; their table rows are the commanded memo's (``found()``)."""
-        if given is not None:
-            (names, values), field = given, "commands"
-        elif req.commands is None:
-            names = list(req.cmd_vel)
-            values = np.array([(tw.linear.x, tw.angular.z) for tw in req.cmd_vel.values()], dtype=np.float64)
-            field = "cmd_vel"
-        else:
+        if req.commands is not None and given is None:
             if req.cmd_vel:
                 raise FleetError(ErrorCode.INVALID_VALUE, "give cmd_vel or commands, not both", "commands")
-            names, raw = req.commands.names, req.commands.twist
-            if len(raw) != 16 * len(names):
-                raise FleetError(
-                    ErrorCode.INVALID_VALUE,
-                    f"commands.twist must hold 2 float64 for each of the {len(names)} names, got {len(raw)} bytes",
-                    "commands",
-                )
-            values = np.frombuffer(raw, dtype="<f8").astype(np.float64)
-            field = "commands"
-        values = values.reshape(len(names), 2)
-        if not _all_finite(values):
-            finite = np.isfinite(values).all(axis=1)
-            ns = names[int(np.argmin(finite))]
-            raise FleetError(ErrorCode.NON_FINITE, f"{field} for {ns!r} is not finite", field)
+            names, values, field = req.commands.names, req.commands.rows(), "commands"  # checked there
+        else:
+            if given is not None:
+                (names, values), field = given, "commands"
+            else:
+                names = list(req.cmd_vel)
+                values = np.array([(tw.linear.x, tw.angular.z) for tw in req.cmd_vel.values()], dtype=np.float64)
+                field = "cmd_vel"
+            values = values.reshape(len(names), 2)
+            check_finite_commands(names, values, field)
         rows = self._commanded_rows.rows(table, names)
         if None in rows:
             ns = names[rows.index(None)]
             raise FleetError(ErrorCode.NOT_FOUND, f"no robot with namespace {ns!r}", field)
         v, w = values.T.copy()  # (one copy: two contiguous rows)
         return names, v, w
-
-
-#: up to this many values are checked in Python: fewer than numpy's two calls cost
-FEW_VALUES = 32
-
-
-def _all_finite(values: F64) -> bool:
-    if values.size <= FEW_VALUES:
-        return all(map(math.isfinite, values.flat))
-    return bool(np.isfinite(values).all())
 
 
 @functools.lru_cache(maxsize=8)
