@@ -9,10 +9,15 @@ so the caller holds the last list as long as it holds its identities.
 
 from __future__ import annotations
 
+import operator
+import threading
 from collections.abc import Sequence
+from typing import Generic, TypeVar
 
 import numpy as np
 import numpy.typing as npt
+
+T = TypeVar("T")
 
 
 def identities(items: Sequence[object]) -> npt.NDArray[np.uint64]:
@@ -64,3 +69,45 @@ def copy_needed(used: int, need: int, size: int, kept: int) -> bool:
     ones do not fit, or when most of what it holds is the records of robots gone (a fleet that
     shrank would otherwise keep the bytes of its biggest size)."""
     return used + need > size or 2 * kept < used
+
+
+#: Lists remembered by :class:`Recent`.
+RECENT = 2
+
+
+class Recent(Generic[T]):
+    """What was made for each of the last few lists (of robots, of records), found again for a
+    list of the same items, by identity: the list itself, or another holding the same objects
+    in the same order (the simulation makes a new list of its robots whenever the fleet
+    changes; a spawn and a delete of the same robot make one equal to the one before).
+
+    More than one, because the fleet a list shows can go back and forth: a spawn answered at
+    once adds a robot to the list until the simulation makes it, a delete of it answered at once
+    takes it out again, and a client spawning, deleting and listing in turn at 20 000 robots
+    made every list's records and byte layout anew (~13 ms of CPU each, simd/wire/list_codec.py).
+    Any thread: the entries are replaced whole under a lock; the lists are held, so the
+    identities of their items stay theirs."""
+
+    def __init__(self, size: int = RECENT) -> None:
+        self.size = size
+        self._lock = threading.Lock()
+        self._entries: list[tuple[Sequence[object], T]] = []  # the latest first
+
+    def get(self, items: Sequence[object]) -> T | None:
+        """What was made for a list of the same items, or None."""
+        with self._lock:
+            entries = self._entries
+        for known, value in entries:
+            if known is items or (len(known) == len(items) and all(map(operator.is_, known, items))):
+                return value
+        return None
+
+    def put(self, items: Sequence[object], value: T) -> None:
+        """Remember ``value`` for ``items``, as the latest (the oldest beyond ``size`` goes)."""
+        with self._lock:
+            self._entries = [(items, value), *(e for e in self._entries if e[0] is not items)][: self.size]
+
+    def latest(self) -> tuple[Sequence[object], T] | None:
+        """The list remembered last, and its value."""
+        with self._lock:
+            return self._entries[0] if self._entries else None

@@ -65,6 +65,9 @@ class Promises:
         # which the first spawn answered at once used to spend before its answer (issue 33)
         self._walls = Walls(sim.world)
         self.pending: list[Promise] = []
+        #: the last roster made, with what it was made from: asked again before anything
+        #: changed, the same one (a list keyed by its robots' identity then needs no new layout)
+        self._made: tuple[Roster, tuple[Promise, ...], Roster] | None = None
 
     def __bool__(self) -> bool:
         return bool(self.pending)
@@ -92,7 +95,17 @@ class Promises:
     def roster(self, roster: Roster) -> Roster:
         """``roster`` as it is once the promises are made: the robots a promise deletes left out,
         those it spawns added at the end, at rest at their poses (as the simulation thread
-        appends them)."""
+        appends them). The same roster, asked again of the same promises, is the same object:
+        every list asked while a promise waited made its records and their byte layout anew
+        (~13 ms of CPU a list at 20 000 robots, with the GIL held)."""
+        made = self._made
+        if made is not None and made[0] is roster and _same(made[1], self.pending):
+            return made[2]
+        result = self._roster(roster)
+        self._made = (roster, tuple(self.pending), result)
+        return result
+
+    def _roster(self, roster: Roster) -> Roster:
         added, removed = self.net()
         if not added and not removed:
             return roster
@@ -192,3 +205,8 @@ def _rows_of(namespaces: list[str], wanted: set[str]) -> list[int]:
         except ValueError:
             pass
     return rows
+
+
+def _same(made_from: tuple[Promise, ...], pending: list[Promise]) -> bool:
+    """The promises a roster was made from are the pending ones (the same objects)."""
+    return len(made_from) == len(pending) and all(a is b for a, b in zip(made_from, pending, strict=True))

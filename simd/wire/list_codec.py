@@ -217,7 +217,9 @@ class RobotListEncoder:
             raise RuntimeError(f"the compiled list packer is not available: {_why}")
         self.native = _native is not None if native is None else native
         self._lock = threading.Lock()
-        self._layout = _Layout.empty()
+        #: the layouts of the recent lists of records (the latest made first: the next is made
+        #: from it, past every byte the others use of a buffer they share)
+        self._layouts: carry.Recent[_Layout] = carry.Recent()
         #: new robots' templates made ahead of the next list, by namespace (with the record)
         self._ready: dict[str, tuple[RobotRecord, _Template]] = {}
 
@@ -247,6 +249,30 @@ class RobotListEncoder:
             return ready[1]
         return _template(record)
 
+    def latest_layout(self) -> _Layout:
+        """The layout made last (an empty one before the first list)."""
+        latest = self._layouts.latest()
+        return latest[1] if latest is not None else _Layout.empty()
+
+    def lay_out(self, records: list[RobotRecord]) -> None:
+        """Make the layout of ``records`` now (any thread), so that a list of them only copies
+        their bytes and writes their numbers."""
+        with self._lock:
+            self._layout_of(records)
+
+    def _layout_of(self, records: list[RobotRecord]) -> _Layout:
+        """The layout of ``records``: a recent one, or one made from the latest (the caller
+        holds the lock)."""
+        layout = self._layouts.get(records)
+        if layout is None:
+            last = self.latest_layout()
+            made = last.shared_successor if self.native else last.successor
+            layout = made(records, self._template)
+            self._layouts.put(records, layout)
+            if self._ready:
+                self._drop_laid_out(layout)
+        return layout
+
     def encode(self, time: float, records: list[RobotRecord], x: F64, y: F64, yaw: F64, linear: F64,
                angular: F64, *, rows: Sequence[int] | None = None) -> bytearray:  # fmt: skip
         """The MessagePack of ``RobotList(stamp=time, robots=records)`` with row ``k``'s pose
@@ -264,12 +290,7 @@ class RobotListEncoder:
         if not head.endswith(b"\x90"):  # robots, the last field, is empty: a fixarray of 0
             raise ValueError("a RobotList does not end with its robots")
         with self._lock:
-            layout = self._layout
-            if records is not layout.records:
-                made = layout.shared_successor if self.native else layout.successor
-                layout = self._layout = made(records, self._template)
-                if self._ready:
-                    self._drop_laid_out(layout)
+            layout = self._layout_of(records)
         picked = None if rows is None else np.asarray(rows, dtype=np.int64).reshape(-1)
         if self.native:
             assert _native is not None

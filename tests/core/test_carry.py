@@ -41,3 +41,21 @@ def test_the_runs_and_the_new_items_rebuild_the_new_list(before: int, edits: lis
         assert new[k] not in old
         rebuilt[k] = new[k]
     assert all(a is b for a, b in zip(rebuilt, new, strict=True))
+
+
+def test_recent_lists_are_found_again_by_the_identity_of_their_items() -> None:
+    """The same list, or another of the same objects in the same order, finds its value; equal
+    objects that are not the same do not; the oldest of more than ``size`` is forgotten."""
+    a, b, c = [object() for _ in range(3)]
+    recent: carry.Recent[str] = carry.Recent(size=2)
+    assert recent.get([a]) is None and recent.latest() is None
+    first, second = [a, b], [a, b, c]
+    recent.put(first, "first")
+    recent.put(second, "second")
+    assert recent.get(first) == "first" and recent.get([a, b]) == "first" and recent.get([b, a]) is None
+    assert recent.get(list(second)) == "second" and recent.latest() == (second, "second")
+    assert recent.get([[1], [2]]) is None  # a list of equal items is not the same list
+    same = [[1], [2]]
+    recent.put(same, "lists")
+    assert recent.get(same) == "lists" and recent.get([[1], [2]]) is None
+    assert recent.get(first) is None and recent.get(second) == "second"  # two kept: the oldest went

@@ -18,7 +18,7 @@ import zenoh
 
 from clients import FleetClient, wait_until
 from protocol import FleetError
-from protocol.control import SpawnRequest
+from protocol.control import DeleteRequest, SpawnRequest
 from protocol.keys import Keys
 from simd.adapters.fleet.adapter import FleetAdapter
 from simd.core.sim import SimConfig, Simulation
@@ -287,3 +287,58 @@ def test_a_spawn_a_delete_and_a_resume_never_wait_for_a_tick_however_long_it_tak
         made = wait_until(lambda: [r.name for r in list(sim.robots.robots)] == ["r1", "new", "r0"], 15.0)
         assert made and wait_until(lambda: not engine.paused, 5.0)
         assert c.alive() == ["new", "r0", "r1"]  # the old r0's delete left the new r0's token be
+
+
+@contextlib.contextmanager
+def _listed_daemon() -> Iterator[tuple[str, Engine, FleetAdapter]]:
+    """An engine with the fleet adapter on a real zenoh session, stepped by the test (no thread
+    of its own), two robots spawned: its endpoint, engine and adapter."""
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    sim = Simulation(load_world("empty"), SimConfig(noise=False, max_robots=10))
+    with zenoh.open(conf) as session:
+        engine = Engine(sim)
+        adapter = FleetAdapter(session, Keys(), engine)
+        try:
+            for request in _grid(2):
+                engine.submit(request, lambda r: None)
+            engine.serve_pending()
+            engine.tick()
+            yield f"tcp/127.0.0.1:{port}", engine, adapter
+        finally:
+            adapter.close()
+
+
+def _laid_out(adapter: FleetAdapter, engine: Engine) -> bool:
+    """The list of the fleet as it is now is laid out already (a list asked now makes nothing)."""
+    cached = adapter._list_cache.get(engine.roster_now().robots)
+    return cached is not None and adapter._list_encoder._layouts.get(cached[1]) is not None
+
+
+def test_while_lists_are_asked_the_next_one_is_laid_out_before_it_is_asked() -> None:
+    """A fleet change makes the next list's records and byte layout on the outbox thread with
+    the tick, while lists are being asked, so a list asked after a spawn does not make them on
+    its query's thread (~13 ms of CPU at 20 000 robots, waiting for the GIL a dozen times);
+    before anybody asked for a list, nothing is laid out. Either way the list is the fleet's."""
+    with _listed_daemon() as (endpoint, engine, adapter), FleetClient(endpoint, timeout=10.0) as c:
+        engine.submit(SpawnRequest(name="early", x=3.0, y=3.0), lambda r: None)
+        engine.serve_pending()
+        engine.tick()
+        assert adapter.outbox.flush() and adapter._list_cache.latest() is None  # nobody listed: nothing made
+        assert [r.name for r in c.robots()] == ["r0", "r1", "early"]
+        for name, x in (("late", -3.0), ("later", -3.0)):
+            engine.submit(SpawnRequest(name=name, x=x, y=3.0 if name == "late" else -3.0), lambda r: None)
+            engine.serve_pending()
+            engine.tick()
+            assert adapter.outbox.flush() and _laid_out(adapter, engine)
+            listed = c.robots()
+            assert [r.name for r in listed][-1] == name and _laid_out(adapter, engine)
+        engine.submit(DeleteRequest(name="r0"), lambda r: None)
+        engine.serve_pending()
+        engine.tick()
+        assert adapter.outbox.flush() and _laid_out(adapter, engine)
+        assert [r.name for r in c.robots()] == ["r1", "early", "late", "later"]
+        assert [r.name for r in c.robots_page("l", 1)] == ["late"]

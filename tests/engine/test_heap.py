@@ -10,7 +10,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from simd.engine.heap import HeapKeeper
+from simd.engine.heap import YOUNG_PER_ROBOT, HeapKeeper
 
 
 class Node:
@@ -82,3 +82,23 @@ def test_closing_gives_the_frozen_objects_back(keeper: tuple[HeapKeeper, list[fl
     assert gc.get_freeze_count() > 0
     k.close()
     assert gc.get_freeze_count() == 0
+
+
+def test_the_youngest_generation_grows_with_the_fleet_and_is_given_back(
+    keeper: tuple[HeapKeeper, list[float]],
+) -> None:
+    k, now = keeper
+    before = gc.get_threshold()
+    k.keep(robots=10, changes=0)  # a small fleet: CPython's own
+    assert gc.get_threshold() == before
+    now[0] += 1.0
+    k.keep(robots=20_000, changes=0)
+    assert gc.get_threshold() == (YOUNG_PER_ROBOT * 20_000, *before[1:])
+    young = _cycle()  # young cyclic garbage is still found by a collection
+    gc.collect(0)
+    assert young() is None
+    now[0] += 1.0
+    k.keep(robots=5_000, changes=20_000)  # the fleet shrank
+    assert gc.get_threshold()[0] == YOUNG_PER_ROBOT * 5_000
+    k.close()
+    assert gc.get_threshold() == before

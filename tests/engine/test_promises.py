@@ -147,6 +147,27 @@ def test_a_delete_answered_at_once_is_gone_from_the_next_tick_and_frees_its_name
     assert kinds[-2:] == [("Deleted", "a"), ("Spawned", "a")]
 
 
+def test_the_roster_of_the_same_promises_is_made_once() -> None:
+    """A list asked again while the same promises wait gets the same roster object (its records
+    and their layout are then not made again), and a new promise makes a new one."""
+    e, r = _engine(running=True)
+    for name, x in (("a", -2.0), ("b", 2.2)):
+        e.submit(control.SpawnRequest(name=name, x=x, y=0.0 if name == "b" else -0.5), r.reply("spawned"))
+    e.serve_pending()
+    e.tick()
+    assert isinstance(e.answer_at_once(control.DeleteRequest(name="a")), RobotState)
+    first = e.roster_now()
+    assert e.roster_now() is first and [robot.name for robot in first.robots] == ["b"]
+    assert isinstance(e.answer_at_once(control.SpawnRequest(name="c", x=-2.0, y=-0.5)), RobotState)
+    second = e.roster_now()
+    assert second is not first and [robot.name for robot in second.robots] == ["b", "c"]
+    assert e.roster_now() is second
+    e.serve_pending()
+    e.tick()
+    made = e.roster_now()  # no promise waits: the simulation thread's own
+    assert made is e.known().roster and [robot.name for robot in made.robots] == ["b", "c"]
+
+
 def test_what_is_not_certain_is_left_to_the_simulation_thread() -> None:
     e, r = _engine(running=True)
     e.submit(control.SpawnRequest(name="a", x=-2.0, y=-0.5), r.reply("spawned"))

@@ -242,29 +242,29 @@ def test_the_compiled_packers_layouts_share_a_buffer_until_it_is_full() -> None:
     records = _records(30)
     columns = [np.arange(30.0) + k for k in range(5)]
     assert enc.encode(1.0, records, *columns) == _expected(1.0, records, columns)
-    first = enc._layout
+    first = enc.latest_layout()
     first_bytes = first.buffer[: first.used].tobytes()
     room = len(first.buffer) - first.used
     assert room >= carry.MIN_SPARE
     spawned = [*records, *_records(1, start=500)]
     cols = [np.arange(31.0) * 2 for _ in range(5)]
     assert enc.encode(2.0, spawned, *cols) == _expected(2.0, spawned, cols)
-    second = enc._layout
+    second = enc.latest_layout()
     assert second.buffer is first.buffer and second.used > first.used
     deleted = spawned[3:]
     cols = [np.arange(28.0) * 3 for _ in range(5)]
     assert enc.encode(3.0, deleted, *cols) == _expected(3.0, deleted, cols)
-    assert enc._layout.buffer is first.buffer and enc._layout.used == second.used
+    assert enc.latest_layout().buffer is first.buffer and enc.latest_layout().used == second.used
     # what the first layout's lists read is unchanged by what the later ones wrote
     assert first.buffer[: first.used].tobytes() == first_bytes
     # spawns until the room is gone: then one new buffer, the records in order, room after them
     pool = iter(_records(2000, start=1000))
     grown = list(records)
-    while enc._layout.buffer is first.buffer:
+    while enc.latest_layout().buffer is first.buffer:
         grown = [*grown, next(pool)]
         cols = [np.ones(len(grown)) * k for k in range(5)]
         assert enc.encode(4.0, grown, *cols) == _expected(4.0, grown, cols)
-    fresh = enc._layout
+    fresh = enc.latest_layout()
     assert fresh.starts[0] == 0 and np.all(fresh.starts[1:] == np.cumsum(fresh.lengths)[:-1])
     assert len(fresh.buffer) - fresh.used >= carry.MIN_SPARE
 
@@ -274,13 +274,35 @@ def test_a_fleet_that_shrank_to_less_than_half_is_copied_into_a_smaller_buffer()
     enc = RobotListEncoder(native=True)
     records = _records(200)
     enc.encode(1.0, records, *[np.zeros(200) for _ in range(5)])
-    big = enc._layout
+    big = enc.latest_layout()
     most = records[:120]  # more than half of the bytes stays: the buffer is kept
     enc.encode(2.0, most, *[np.ones(120) for _ in range(5)])
-    assert enc._layout.buffer is big.buffer
+    assert enc.latest_layout().buffer is big.buffer
     few = records[:10]
     cols = [np.full(10, 3.0) for _ in range(5)]
     assert enc.encode(3.0, few, *cols) == _expected(3.0, few, cols)
-    small = enc._layout
+    small = enc.latest_layout()
     assert small.buffer is not big.buffer and small.used == int(small.lengths.sum())
     assert len(small.buffer) < len(big.buffer) / 2
+
+
+@pytest.mark.parametrize("native", PATHS)
+def test_a_fleet_going_back_and_forth_finds_its_recent_layouts(native: bool) -> None:
+    """A robot spawned and deleted again (a promise, then the simulation's own list of the same
+    robots): the list of the robots before is laid out once, found again for an equal list,
+    and still right after the layouts made since wrote to the buffer they share."""
+    enc = RobotListEncoder(native)
+    records = _records(40)
+    extra = _records(2, start=900)
+    cols = [np.arange(40.0) + k for k in range(5)]
+    assert enc.encode(1.0, records, *cols) == _expected(1.0, records, cols)
+    before = enc.latest_layout()
+    grown = [*records, extra[0]]
+    more = [np.arange(41.0) * 2 for _ in range(5)]
+    assert enc.encode(2.0, grown, *more) == _expected(2.0, grown, more)
+    again = list(records)  # the same robots in a new list
+    assert enc.encode(3.0, again, *cols) == _expected(3.0, again, cols)
+    assert enc.latest_layout() is not before and enc._layouts.get(again) is before  # found, not made
+    other = [*records, extra[1]]  # made from the latest, past every byte the others use
+    assert enc.encode(4.0, other, *more) == _expected(4.0, other, more)
+    assert enc.encode(5.0, grown, *more) == _expected(5.0, grown, more)

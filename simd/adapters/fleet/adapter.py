@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from collections.abc import Callable, Mapping
 from functools import partial
 from typing import Any, cast
@@ -73,6 +74,9 @@ log = logging.getLogger(__name__)
 #: a MessagePack list of more robots than this is written from the fleet's byte templates (a
 #: page); of fewer, from their records (one robot by name: no layout of the fleet needed)
 FEW_ROWS = 64
+#: For how long after a list was asked the fleet's list is laid out again whenever the fleet
+#: changes, before anybody asks (seconds).
+LISTS_WARM_S = 30.0
 
 
 class FleetAdapter:
@@ -98,11 +102,14 @@ class FleetAdapter:
         self._own: set[str] = set()  # names and namespaces of this daemon's robots (sim thread writes)
         #: each robot's record as its spawn made it (sim thread writes; lists read it)
         self._records: dict[str, RobotRecord] = {}
-        #: (the roster's robots, their index by name): see _name_index
-        self._names_cache: tuple[object, listing.NameIndex] | None = None
-        #: (the roster's robots, their identities, their records in order): see _list_records
-        self._list_cache: tuple[object, npt.NDArray[np.uint64], list[RobotRecord]] | None = None
+        #: the recent rosters' robots, and their index by name: see _name_index
+        self._names_cache: carry.Recent[listing.NameIndex] = carry.Recent()
+        #: the recent rosters' robots, and (their identities, their records in order): see _list_records
+        self._list_cache: carry.Recent[tuple[npt.NDArray[np.uint64], list[RobotRecord]]] = carry.Recent()
         self._list_encoder = RobotListEncoder()
+        #: when a list was last asked (monotonic s; 0: never): ticks lay out the next one while
+        #: lists are being asked (see _warm_list)
+        self._list_wanted = 0.0
         #: spawns answered at once whose robots the publisher announced then, by namespace: their
         #: Spawned events (and a Deleted event of that name before them) leave the publisher be
         self._announced: dict[str, int] = {}
@@ -192,6 +199,7 @@ class FleetAdapter:
         records (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60; a page of
         1 000 among 20 000 just after a change in ~2.5 ms of CPU instead of ~8, most of it now
         ordering the names), a few robots from their records."""
+        self._list_wanted = time.monotonic()
         r = self.engine.roster_now()
         rows = None if listing.whole(request) else self._name_index(r).rows(request)
         if rows is None or len(rows) > FEW_ROWS:
@@ -206,6 +214,7 @@ class FleetAdapter:
         its spawn, with the pose and twist of now put in: a JSON list, and a few robots in
         MessagePack (:meth:`msgpack_list`). ``rows``: the request's rows of ``roster``, when the
         caller has them."""
+        self._list_wanted = time.monotonic()
         roster = roster if roster is not None else self.engine.roster_now()
         if listing.whole(request):
             records = self._list_records(roster)
@@ -219,14 +228,27 @@ class FleetAdapter:
                   for record, x, y, yaw, v, w in zip(records, *(c.tolist() for c in columns), strict=True)]  # fmt: skip
         return RobotList(stamp=Time.from_seconds(roster.time), robots=robots)
 
+    def _warm_list(self) -> None:
+        """Lay out the list of the fleet as it is now, on the outbox thread, when the fleet has
+        changed since the last list (the module docstring of simd/wire/list_codec.py): the next
+        list asked only writes the pose and twist of now into bytes made beforehand. Making the
+        records and their layout anew after a spawn or a delete took ~13 ms of CPU at 20 000
+        robots on the query's thread, in a dozen numpy operations that each let go of the GIL
+        and waited to get it back behind the simulation and the outbox threads: ~35 ms of a
+        list's latency while the fleet ran (bench.overload)."""
+        roster = self.engine.roster_now()
+        if self._list_cache.get(roster.robots) is not None:
+            return
+        self._list_encoder.lay_out(self._list_records(roster))
+        self._name_index(roster)
+
     def _name_index(self, roster: Roster) -> listing.NameIndex:
         """The roster's robots by name (made once per fleet: a roster's robots list is
         replaced when the fleet changes, kept otherwise)."""
-        cached = self._names_cache
-        if cached is not None and cached[0] is roster.robots:
-            return cached[1]
-        index = listing.NameIndex(roster.names, roster.namespaces)
-        self._names_cache = (roster.robots, index)
+        index = self._names_cache.get(roster.robots)
+        if index is None:
+            index = listing.NameIndex(roster.names, roster.namespaces)
+            self._names_cache.put(roster.robots, index)
         return index
 
     def _list_records(self, roster: Roster) -> list[RobotRecord]:
@@ -235,12 +257,13 @@ class FleetAdapter:
         one: the robots both rosters have keep their records, copied over in runs (found by
         identity, simd/core/carry.py), and only the others are looked up, where looking up
         20 000 robots took ~5 ms. A robot's record does not change while it lives."""
-        cached = self._list_cache
-        if cached is not None and cached[0] is roster.robots:
-            return cached[2]
+        cached = self._list_cache.get(roster.robots)
+        if cached is not None:
+            return cached[1]
         robots = roster.robots
         ids = carry.identities(robots)
-        _, before_ids, before = cached if cached is not None else ([], carry.identities([]), [])
+        latest = self._list_cache.latest()
+        before_ids, before = latest[1] if latest is not None else (carry.identities([]), [])
         source = carry.positions(before_ids, ids)
         listed: list[RobotRecord | None] = [None] * len(robots)
         for first, count, at in carry.runs(source):
@@ -248,7 +271,7 @@ class FleetAdapter:
         for k in np.flatnonzero(source < 0).tolist():
             listed[k] = self._record_of(roster, k)
         made = cast("list[RobotRecord]", listed)
-        self._list_cache = (robots, ids, made)  # the robots held: their identities stay theirs
+        self._list_cache.put(robots, (ids, made))  # the robots held: their identities stay theirs
         return made
 
     def _record_of(self, roster: Roster, row: int) -> RobotRecord:
@@ -364,6 +387,10 @@ class FleetAdapter:
     # -- the engine's side (simulation thread) ----------------------------------------------------
 
     def on_tick(self, snapshot: TickSnapshot) -> None:
+        if self._list_wanted and self._list_wanted + LISTS_WARM_S > time.monotonic():
+            # first: publishing a tick of 20 000 robots takes the outbox thread ~0.3 s, and a
+            # list asked meanwhile would make the layout itself
+            self.outbox.put(self._warm_list, wait=False)
         self.outbox.put(partial(self.publisher.publish_tick, snapshot))
 
     def on_event(self, event: Event) -> None:
