@@ -54,6 +54,29 @@ class Fleet:
             return False, _error_text(err.payload.to_bytes() if err is not None else b""), dt
         return False, "no daemon answered", time.perf_counter() - t0
 
+    def moving(self, timeout: float, every_daemon: bool = False) -> int:
+        """How many robots of the fleet are moving now (forward or back faster than 1 cm/s, as
+        the robot list says): whether a driver's commands reach the robots, which a benchmark
+        of a driven fleet must check (a zenoh publisher drops what is put on it until it is
+        matched, and at 10 000 publishers that took ~20 s). ``every_daemon``: the robots of
+        every daemon of a shared fleet (each answers with its own)."""
+        from protocol.codec import MAX_REPLY_BYTES, decode
+        from protocol.control import RobotList
+
+        if not every_daemon:
+            ok, data, _ = self.query(f"{PREFIX}/robots", None, timeout)
+            if not ok:
+                raise RuntimeError(f"robot list failed: {data}")
+            lists = [data]
+        else:
+            lists = [reply.ok.payload.to_bytes()
+                     for reply in self.session.get(f"{PREFIX}/robots?format=msgpack", timeout=timeout,
+                                                   target=self.zenoh.QueryTarget.ALL,
+                                                   consolidation=self.zenoh.ConsolidationMode.NONE)
+                     if reply.ok is not None]  # fmt: skip
+        listed = [decode(data, RobotList, max_bytes=MAX_REPLY_BYTES) for data in lists]  # 16 MB at 20 000
+        return sum(abs(r.linear_velocity) > 0.01 for one in listed for r in one.robots)
+
     def clock(self, timeout: float = 10.0) -> Any:
         from protocol.codec import decode
         from protocol.control import Clock

@@ -121,6 +121,8 @@ def run_size(
             stack.callback(driver.stop)
             settle(ctx, s.settle, progress)
             run["measure"] = measure_window(ctx, s.duration, progress)
+            # a fleet the driver's commands never reached costs the daemon less than a driven one
+            run["moving"] = fleet.moving(30.0)
             rss = proc_status_kb(daemon.pid, "VmRSS")
             live = spawned + (1 if probe_ok else 0)
             run["memory"] = {
@@ -161,6 +163,7 @@ def _summary_line(run: dict[str, Any], label: str) -> str:
         f"{label} {run['status']}: rtf {fmt_f(m.get('rtf_median'))}, odom {fmt_f(m.get('odom_fraction'), 3)}, "
         f"scan {fmt_f(m.get('scan_fraction'), 3)} delivered, daemon cpu {fmt_pct(m.get('daemon_cpu_pct'))}, "
         f"spawn total {fmt_f((run.get('spawn') or {}).get('total_s'))} s, "
+        f"{run.get('moving', '?')}/{run['n']} moving, "
         f"cmd→odom p50 {fmt_ms(lat.get('p50_s'))} ms ({run.get('elapsed_s', 0):.0f} s)"
     )
 

@@ -48,7 +48,7 @@ from bench.client import Fleet, spawn_request
 from bench.numbers import percentile
 from bench.processes import PREEXEC, ROOT, DaemonProc, raise_exit, start_daemon, stop_process
 from bench.progress import Progress
-from bench.report import machine_info, machine_line
+from bench.report import DRIVEN, machine_info, machine_line
 from bench.sleeper import Sleeper
 from bench.subscriber import Subscriber
 from bench.wire import PREFIX, TICK_HZ
@@ -183,23 +183,6 @@ def _ms(s: float | None) -> float | None:
     return None if s is None else round(s * 1e3, 1)
 
 
-#: Share of the fleet that must be moving before the settling (and the running phase) begins.
-DRIVEN = 0.9
-
-
-def _moving(fleet: Fleet, timeout: float) -> int:
-    """How many robots of the fleet move (the daemon runs with ``--cmd-timeout 0``: a robot that
-    got one command keeps it, so this counts the robots the driver's commands reached)."""
-    from protocol.codec import MAX_REPLY_BYTES, decode
-    from protocol.control import RobotList
-
-    ok, data, _ = fleet.query(f"{PREFIX}/robots", None, timeout)
-    if not ok:
-        raise RuntimeError(f"robot list failed: {data}")
-    listed = decode(data, RobotList, max_bytes=MAX_REPLY_BYTES)  # 16 MB at 20 000 robots
-    return sum(abs(r.linear_velocity) > 0.01 for r in listed.robots)
-
-
 def _clock(fleet: Fleet, timeout: float) -> tuple[float, Any]:
     c = fleet.clock(timeout)
     return time.monotonic(), c
@@ -256,7 +239,7 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
             # (with one per robot, a publisher put before that is dropped at the driver): the
             # running phase is about a driven fleet, so it waits for one, and says if it came not.
             t_wait = time.monotonic()
-            while (moving := _moving(fleet, 30.0)) < DRIVEN * n and time.monotonic() - t_wait < args.wait_driven:
+            while (moving := fleet.moving(30.0)) < DRIVEN * n and time.monotonic() - t_wait < args.wait_driven:
                 progress.update(f"{label} waiting for the fleet to be driven: {moving}/{n} moving")
                 time.sleep(1.0)
             out["moving_at_start"], out["driven_after_s"] = moving, round(time.monotonic() - t_wait, 1)
@@ -282,7 +265,7 @@ def run(n: int, args: argparse.Namespace, tmp: Path, progress: Progress) -> dict
                 time.sleep(args.gap)
             out["running"] = running.summary()
             out["machine"]["running"] = sleeper.stop()
-            out["moving_at_end"] = _moving(fleet, 30.0)
+            out["moving_at_end"] = fleet.moving(30.0)
             out["unexpected"] = paused.unexpected + running.unexpected
             out["watched_messages"] = watched[0]
             out["driver"] = driver.stop()

@@ -74,6 +74,7 @@ def test_quick_benchmark_writes_every_output(tmp_path: Path) -> None:
         run = runs[(n, "rtf1")]
         assert run["latency"]["p50_s"] is not None
         assert run["spawn_single"]["spawn_p99_s"] is not None
+        assert run["moving"] >= 0.9 * n, run["moving"]  # the driver's commands reached the fleet
     assert res["machine"]["cores"] and res["machine"]["zenoh"]
     assert len(res["targets"]) == 6
 

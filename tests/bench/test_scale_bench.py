@@ -21,8 +21,9 @@ def test_a_small_fleet_over_two_daemons_is_measured(tmp_path: Path) -> None:
     )  # fmt: skip
     out = proc.stdout
     assert proc.returncode == 0, out[-3000:] + proc.stderr[-3000:]
-    rows = re.findall(r"^\| (\d) \| 40 \| ([\d.]+) \| ([\d.]+) / ([\d.]+) \| (yes|no) \|", out, re.MULTILINE)
+    rows = re.findall(r"^\| (\d) \| 40 \| ([\d.]+) \| ([\d.]+) / ([\d.]+) \| (\d+) \| (yes|no) \|", out, re.MULTILINE)
     assert [r[0] for r in rows] == ["2"], out
+    assert int(rows[0][4]) >= 36, out  # the driver's commands reached the robots of both daemons
     data = json.loads((tmp_path / "scale.json").read_text())
     runs = data["runs"]
     assert [r["status"] for r in runs] == ["ok"]
