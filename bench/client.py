@@ -55,8 +55,9 @@ class Fleet:
         return False, "no daemon answered", time.perf_counter() - t0
 
     def moving(self, timeout: float, every_daemon: bool = False) -> int:
-        """How many robots of the fleet are moving now (forward or back faster than 1 cm/s, as
-        the robot list says): whether a driver's commands reach the robots, which a benchmark
+        """How many robots of the fleet are moving now (as the robot list says: faster than
+        1 cm/s, or turning faster than 0.01 rad/s, as a driven robot pushing against a wall or
+        another robot still does): whether a driver's commands reach the robots, which a benchmark
         of a driven fleet must check (a zenoh publisher drops what is put on it until it is
         matched, and at 10 000 publishers that took ~20 s). ``every_daemon``: the robots of
         every daemon of a shared fleet (each answers with its own)."""
@@ -75,7 +76,9 @@ class Fleet:
                                                    consolidation=self.zenoh.ConsolidationMode.NONE)
                      if reply.ok is not None]  # fmt: skip
         listed = [decode(data, RobotList, max_bytes=MAX_REPLY_BYTES) for data in lists]  # 16 MB at 20 000
-        return sum(abs(r.linear_velocity) > 0.01 for one in listed for r in one.robots)
+        return sum(
+            abs(r.linear_velocity) > 0.01 or abs(r.angular_velocity) > 0.01 for one in listed for r in one.robots
+        )
 
     def clock(self, timeout: float = 10.0) -> Any:
         from protocol.codec import decode
