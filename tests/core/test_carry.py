@@ -52,7 +52,11 @@ def test_recent_lists_are_found_again_by_the_identity_of_their_items() -> None:
     first, second = [a, b], [a, b, c]
     recent.put(first, "first")
     recent.put(second, "second")
-    assert recent.get(first) == "first" and recent.get([a, b]) == "first" and recent.get([b, a]) is None
+    assert recent.get(first) == "first" and recent.get([b, a]) is None
+    again = [a, b]
+    assert recent.get(again) == "first"
+    assert recent.latest() == (second, "second") and recent._entries[1][0] is again  # kept for it from now on
+    assert recent.get(first) == "first"  # the same items all the same
     assert recent.get(list(second)) == "second" and recent.latest() == (second, "second")
     assert recent.get([[1], [2]]) is None  # a list of equal items is not the same list
     same = [[1], [2]]
