@@ -54,13 +54,9 @@ class Fleet:
             return False, _error_text(err.payload.to_bytes() if err is not None else b""), dt
         return False, "no daemon answered", time.perf_counter() - t0
 
-    def moving(self, timeout: float, every_daemon: bool = False) -> int:
-        """How many robots of the fleet are moving now (as the robot list says: faster than
-        1 cm/s, or turning faster than 0.01 rad/s, as a driven robot pushing against a wall or
-        another robot still does): whether a driver's commands reach the robots, which a benchmark
-        of a driven fleet must check (a zenoh publisher drops what is put on it until it is
-        matched, and at 10 000 publishers that took ~20 s). ``every_daemon``: the robots of
-        every daemon of a shared fleet (each answers with its own)."""
+    def robot_lists(self, timeout: float, every_daemon: bool = False) -> list[Any]:
+        """The robot list (``RobotList``), or with ``every_daemon`` each daemon's of a shared
+        fleet (each answers with its own robots)."""
         from protocol.codec import MAX_REPLY_BYTES, decode
         from protocol.control import RobotList
 
@@ -75,9 +71,18 @@ class Fleet:
                                                    target=self.zenoh.QueryTarget.ALL,
                                                    consolidation=self.zenoh.ConsolidationMode.NONE)
                      if reply.ok is not None]  # fmt: skip
-        listed = [decode(data, RobotList, max_bytes=MAX_REPLY_BYTES) for data in lists]  # 16 MB at 20 000
+        return [decode(data, RobotList, max_bytes=MAX_REPLY_BYTES) for data in lists]  # 16 MB at 20 000
+
+    def moving(self, timeout: float, every_daemon: bool = False) -> int:
+        """How many robots of the fleet are moving now (as the robot list says: faster than
+        1 cm/s, or turning faster than 0.01 rad/s, as a driven robot pushing against a wall or
+        another robot still does): whether a driver's commands reach the robots, which a benchmark
+        of a driven fleet must check (a zenoh publisher drops what is put on it until it is
+        matched, and at 10 000 publishers that took ~20 s)."""
         return sum(
-            abs(r.linear_velocity) > 0.01 or abs(r.angular_velocity) > 0.01 for one in listed for r in one.robots
+            abs(r.linear_velocity) > 0.01 or abs(r.angular_velocity) > 0.01
+            for one in self.robot_lists(timeout, every_daemon)
+            for r in one.robots
         )
 
     def clock(self, timeout: float = 10.0) -> Any:

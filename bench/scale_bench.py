@@ -129,16 +129,10 @@ def run(k: int, n: int, args: argparse.Namespace, tmp: Path, progress: Progress)
             )
             spawned = [nm for nm, (_, ok, _) in zip(names, results, strict=True) if ok]
             out["spawned"], out["spawn_s"] = len(spawned), spawn_s
-            from protocol.codec import MAX_REPLY_BYTES, decode
-            from protocol.control import RobotList
-
             per_daemon: dict[str, int] = {}
-            for reply in fleet.session.get(f"{PREFIX}/robots?format=msgpack", timeout=30.0,
-                                           target=fleet.zenoh.QueryTarget.ALL,
-                                           consolidation=fleet.zenoh.ConsolidationMode.NONE):  # fmt: skip
-                if reply.ok is not None:
-                    for r in decode(reply.ok.payload.to_bytes(), RobotList, MAX_REPLY_BYTES).robots:
-                        per_daemon[r.daemon] = per_daemon.get(r.daemon, 0) + 1
+            for listed in fleet.robot_lists(30.0, every_daemon=True):
+                for r in listed.robots:
+                    per_daemon[r.daemon] = per_daemon.get(r.daemon, 0) + 1
             out["robots_per_daemon"] = per_daemon
             driver = Driver(fleet, spawned, args.seed, rate_hz=args.drive_hz)
             driver.start()

@@ -144,6 +144,7 @@ class FleetAdapter:
             except FleetError as e:
                 pending.error(e)
                 return
+            self._list_wanted = time.monotonic()  # ticks lay out the next list meanwhile
             if pending.fmt == "msgpack":
                 pending.ok_encoded(self.msgpack_list(request))
             else:
@@ -199,7 +200,6 @@ class FleetAdapter:
         records (simd/wire/list_codec.py: 8 000 robots in a few ms instead of ~60; a page of
         1 000 among 20 000 just after a change in ~2.5 ms of CPU instead of ~8, most of it now
         ordering the names), a few robots from their records."""
-        self._list_wanted = time.monotonic()
         r = self.engine.roster_now()
         rows = None if listing.whole(request) else self._name_index(r).rows(request)
         if rows is None or len(rows) > FEW_ROWS:
@@ -214,7 +214,6 @@ class FleetAdapter:
         its spawn, with the pose and twist of now put in: a JSON list, and a few robots in
         MessagePack (:meth:`msgpack_list`). ``rows``: the request's rows of ``roster``, when the
         caller has them."""
-        self._list_wanted = time.monotonic()
         roster = roster if roster is not None else self.engine.roster_now()
         if listing.whole(request):
             records = self._list_records(roster)
