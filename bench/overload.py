@@ -334,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
         "--wait-driven",
         type=float,
         default=60.0,
-        help=f"seconds to wait, once running, for {DRIVEN:.0%} of the fleet to move (default 60)",
+        help=f"seconds to wait, once running, for {DRIVEN:.0%}% of the fleet to move (default 60)",
     )
     p.add_argument("--driver", default="batched", choices=("batched", "robots"),
                    help="how the driver sends: every command of a cycle in one message on P/commands "
