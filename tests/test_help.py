@@ -13,8 +13,8 @@ from typing import Any
 
 import pytest
 
-from clients.fleet.cli import build_parser
 from clients.fleet.cli import main as fleet_main
+from clients.fleet_args import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Benchmarks' helpers that other processes start, with arguments of their own, not flags.
