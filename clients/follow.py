@@ -18,6 +18,7 @@ from types import FrameType
 from typing import Any, TypeVar
 
 from clients.tick_merge import is_reset, stamp_ns
+from fleetcommon.signals import SignalEvent
 from protocol import FleetError
 from protocol.messages import FleetOdometry, FleetScans, Time
 
@@ -133,7 +134,6 @@ class UpToStop:
             last = time.monotonic()
             handling += last - got
 
-
     def report(self, tool: str, queued: int) -> list[str]:
         """The stderr lines a follower prints after its stop (``queued``: messages received and
         not handled): what a second stop left out, a wait that hit its cap, ticks that never came."""
@@ -153,14 +153,15 @@ def _newer(newest: int, stamp: int) -> int:
     return stamp if stamp > newest or is_reset(newest, stamp) else newest
 
 
-class Stop(threading.Event):
+class Stop(SignalEvent):
     """Set at the first SIGINT or SIGTERM: the loop ends cleanly and the output is written.
     ``hurry`` is set at the second: what is still on its way or queued is not waited for (a
-    follower far behind the fleet may have minutes of work queued)."""
+    follower far behind the fleet may have minutes of work queued). Both are set without a
+    lock from the handler (fleetcommon/signals.py)."""
 
     def __init__(self) -> None:
         super().__init__()
-        self.hurry = threading.Event()
+        self.hurry = SignalEvent()
 
 
 def stop_on_signals() -> Stop:
@@ -169,8 +170,8 @@ def stop_on_signals() -> Stop:
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
         if stop.is_set():
-            stop.hurry.set()
-        stop.set()
+            stop.hurry.set_from_signal()
+        stop.set_from_signal()
 
     signal.signal(signal.SIGINT, on_signal)
     signal.signal(signal.SIGTERM, on_signal)

@@ -20,9 +20,9 @@ from __future__ import annotations
 import argparse
 import signal
 import sys
-import threading
 from types import FrameType
 
+from fleetcommon.signals import SignalEvent
 from fleetcommon.zenoh_config import (
     DEFAULT_ENDPOINT,
     ZenohOptions,
@@ -75,10 +75,10 @@ def main(argv: list[str] | None = None) -> int:
         conf = opts.build()
     except (ValueError, zenoh.ZError) as e:
         return fail(zenoh_error_text(e))
-    stop = threading.Event()
+    stop = SignalEvent()
 
     def on_signal(signum: int, frame: FrameType | None) -> None:
-        stop.set()
+        stop.set_from_signal()  # (never Event.set here: fleetcommon/signals.py)
 
     signal.signal(signal.SIGTERM, on_signal)
     signal.signal(signal.SIGINT, on_signal)
