@@ -1,0 +1,180 @@
+"""What a declaration costs a zenoh peer while another peer drives thousands of keys through
+it, in bare zenoh (no simd): the floor under a spawn's and a delete's reply when a driver
+commands every robot through a publisher of its own.
+
+    python -m bench.zenoh_declare                        # 8 000 robots' keys, driven at 10 Hz
+    python -m bench.zenoh_declare --publishers 1000      # a smaller fleet
+    python -m bench.zenoh_declare --driver batched       # every command of a cycle in one message
+
+This process plays the daemon: a peer that listens, holds a liveliness token per robot
+(``fleet/r<i>/alive``) and ring subscribers on ``fleet/*/cmd_vel`` and ``fleet/commands`` that
+it drains as the simulation thread does. A driver, in a process of its own, connects and
+declares a publisher per robot (``FleetClient.drive``, or a ROS tool per robot; with
+``--driver batched`` one publisher on ``fleet/commands`` that carries every robot's command of
+a cycle in one message, as ``FleetClient.drive_many``). Then, twice side by side, first with
+the driver silent (``quiet``) and then putting every robot's command at ``--rate`` Hz
+(``driven``), this process times what a spawn and a delete ask of zenoh: declare a token
+(``P/<ns>/alive``, before a spawn's reply), declare a publisher (a robot's odometry), put once
+on a key string (no publisher), undeclare the token (before a delete's reply). It prints each
+one's p50 and p99 in ms for both and the ratio driven / quiet. The numbers are in
+docs/robustness.md ("The floor under a spawn's reply").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from bench.numbers import percentile
+from bench.processes import PREEXEC, free_port
+
+if TYPE_CHECKING:
+    import zenoh
+
+OPERATIONS = ("token", "publisher", "key_put", "token_undeclare")
+#: A Twist in MessagePack is ~60 bytes; an Odometry ~1.1 kB.
+COMMAND, ODOMETRY = b"c" * 60, b"o" * 1100
+
+
+def _config(listen: str | None = None, connect: str | None = None) -> zenoh.Config:
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps([listen]))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps([connect]))
+    return conf
+
+
+def _drive(endpoint: str, publishers: int, rate: float, batched: bool) -> None:
+    """The driver: a publisher per robot (or one for all, ``batched``); puts every robot's
+    command at ``rate`` Hz while the last line read from stdin was ``on``; ends at EOF."""
+    import threading
+
+    import zenoh
+
+    with zenoh.open(_config(connect=endpoint)) as session:
+        if batched:  # (names and two float64 a robot, about what PackedCommands carries)
+            pubs, payload = [session.declare_publisher("fleet/commands")], COMMAND[:24] * publishers
+        else:
+            pubs, payload = [session.declare_publisher(f"fleet/r{i}/cmd_vel") for i in range(publishers)], COMMAND
+        driving = threading.Event()
+        done = threading.Event()
+
+        def read() -> None:
+            for line in sys.stdin:
+                (driving.set if line.strip() == "on" else driving.clear)()
+            done.set()
+
+        threading.Thread(target=read, daemon=True).start()
+        print("ready", flush=True)
+        period, next_t = 1.0 / rate, time.monotonic()
+        while not done.is_set():
+            if driving.is_set():
+                for p in pubs:
+                    p.put(payload)
+            next_t += period
+            time.sleep(max(0.0, next_t - time.monotonic()))
+
+
+def _measure(s: zenoh.Session, drain: Callable[[], None], samples: int, tag: str) -> dict[str, list[float]]:
+    """Time each operation ``samples`` times on fresh names (as spawns of new robots)."""
+    took: dict[str, list[float]] = {op: [] for op in OPERATIONS}
+    for k in range(samples):
+        drain()
+        ns = f"n{tag}{k}"
+        t0 = time.perf_counter()
+        token = s.liveliness().declare_token(f"fleet/{ns}/alive")
+        t1 = time.perf_counter()
+        pub = s.declare_publisher(f"fleet/{ns}/odom")
+        t2 = time.perf_counter()
+        s.put(f"fleet/{ns}/scan", ODOMETRY)
+        t3 = time.perf_counter()
+        token.undeclare()
+        t4 = time.perf_counter()
+        pub.undeclare()
+        for op, seconds in zip(OPERATIONS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3), strict=True):
+            took[op].append(seconds * 1e3)
+        time.sleep(0.02)  # requests one after another, as overload's
+    return took
+
+
+def _ms(values: list[float], p: float) -> float:
+    found = percentile(values, p)
+    assert found is not None  # (every phase times at least one of each)
+    return found
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--publishers", type=int, default=8000, help="robots, each with a publisher (default 8000)")
+    ap.add_argument("--rate", type=float, default=10.0, help="commands a second per robot when driven (default 10)")
+    ap.add_argument("--samples", type=int, default=200, help="of each operation, per phase (default 200)")
+    ap.add_argument("--settle", type=float, default=3.0, help="seconds after the driver starts putting (default 3)")
+    ap.add_argument(
+        "--driver",
+        choices=("robots", "batched"),
+        default="robots",
+        help="a publisher per robot (default), or every command of a cycle in one message",
+    )
+    ap.add_argument("--drive-endpoint", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.drive_endpoint:
+        _drive(args.drive_endpoint, args.publishers, args.rate, args.driver == "batched")
+        return 0
+    if args.publishers < 1 or args.samples < 1 or not args.rate > 0 or args.settle < 0:
+        ap.error("--publishers and --samples must be at least 1, --rate above 0, --settle not negative")
+    import zenoh
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with zenoh.open(_config(listen=endpoint)) as session:
+        ring = session.declare_subscriber("fleet/*/cmd_vel", zenoh.handlers.RingChannel(65536))
+        batches = session.declare_subscriber("fleet/commands", zenoh.handlers.RingChannel(64))
+        tokens = [session.liveliness().declare_token(f"fleet/r{i}/alive") for i in range(args.publishers)]
+
+        def drain() -> None:
+            while ring.try_recv() is not None or batches.try_recv() is not None:
+                pass
+
+        driver = subprocess.Popen(
+            [sys.executable, "-m", "bench.zenoh_declare", "--drive-endpoint", endpoint,
+             "--publishers", str(args.publishers), "--rate", str(args.rate), "--driver", args.driver],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, preexec_fn=PREEXEC,
+        )  # fmt: skip
+        assert driver.stdin is not None and driver.stdout is not None
+        try:
+            if driver.stdout.readline().strip() != "ready":
+                print("zenoh_declare: the driver did not start", file=sys.stderr)
+                return 1
+            time.sleep(min(args.settle, 1.0))  # its publishers' declarations reach this peer
+            quiet = _measure(session, drain, args.samples, "q")
+            driver.stdin.write("on\n")
+            driver.stdin.flush()
+            time.sleep(args.settle)
+            driven = _measure(session, drain, args.samples, "d")
+        finally:
+            driver.stdin.close()
+            driver.wait(10.0)
+        for t in tokens:
+            t.undeclare()
+    how = "one message a cycle on fleet/commands" if args.driver == "batched" else f"{args.publishers} publishers"
+    print(f"{args.publishers} robots' tokens here; a driver with {how}, every robot's command "
+          f"{args.rate:g} times a second when driven; {args.samples} of each operation (ms)")  # fmt: skip
+    print("| operation | quiet p50 | quiet p99 | driven p50 | driven p99 | p99 driven / quiet |")
+    print("|---|---:|---:|---:|---:|---:|")
+    for op in OPERATIONS:
+        q50, q99, d50, d99 = (_ms(phase[op], p) for phase in (quiet, driven) for p in (50, 99))
+        print(f"| {op} | {q50:.2f} | {q99:.2f} | {d50:.2f} | {d99:.2f} | {d99 / max(q99, 1e-9):.1f} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
