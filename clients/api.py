@@ -115,7 +115,10 @@ class FleetClient:
         self.options = options
         self.keys = Keys(prefix)
         self.timeout = timeout
-        conf = options.build()
+        try:
+            conf = options.build()
+        except ValueError as e:  # a bad endpoint, config file or --cfg: the user's to fix
+            raise FleetError(ErrorCode.INVALID_VALUE, f"bad zenoh configuration: {e}", "connect") from None
         if options.mode == "client":
             # fail within the timeout instead of hanging when nothing listens there
             conf.insert_json5("connect/timeout_ms", str(int(timeout * 1000)))

@@ -83,10 +83,23 @@ class ZenohOptions:
 
     def build(self, defaults: dict[str, str] | None = None) -> zenoh.Config:
         """The session config: file, then flags; ``defaults`` (key -> JSON5) apply only
-        without a config file, and ``--cfg`` overrides them."""
+        without a config file, and ``--cfg`` overrides them. A bad endpoint, file or
+        ``--cfg`` raises ValueError with zenoh's complaint in one line (zenoh's own error
+        carries the Rust source path it came from)."""
         import zenoh
 
-        conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+        try:
+            return self._build(defaults)
+        except zenoh.ZError as e:
+            raise ValueError(zenoh_error_text(e)) from None
+
+    def _build(self, defaults: dict[str, str] | None) -> zenoh.Config:
+        import zenoh
+
+        try:
+            conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
+        except zenoh.ZError as e:  # (zenoh's says what is wrong, not with which file)
+            raise ValueError(f"{self.config_file}: {zenoh_error_text(e)}") from None
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.listen:
             conf.insert_json5("listen/endpoints", json.dumps(self.listen))

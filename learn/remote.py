@@ -20,7 +20,6 @@ from __future__ import annotations
 from typing import Any
 
 from clients.api import FleetClient
-from fleetcommon.zenoh_config import zenoh_error_text
 from protocol.control import Clock
 from protocol.errors import FleetError
 
@@ -39,9 +38,10 @@ class RemoteFleet(FleetClient):
         try:
             super().__init__(endpoint, prefix=prefix, timeout=REMOTE_TIMEOUT_S)
         except FleetError as e:
-            raise ConnectionError(f"no fleetsim daemon at {endpoint}: {e.message.split(': ', 1)[-1]}") from None
-        except Exception as e:  # zenoh refuses a malformed endpoint before it tries it
-            raise ConnectionError(f"cannot connect to {endpoint!r}: {zenoh_error_text(e)}") from None
+            why = e.message.split(": ", 1)[-1]
+            if e.field == "connect":  # zenoh refuses a malformed endpoint before it tries it
+                raise ConnectionError(f"cannot connect to {endpoint!r}: {why}") from None
+            raise ConnectionError(f"no fleetsim daemon at {endpoint}: {why}") from None
         try:
             self._check(world)
             learner = f"{prefix}/@learner"

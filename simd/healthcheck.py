@@ -84,9 +84,12 @@ def check(target: Target, timeout: float, config_file: str | None = None) -> tup
     import zenoh
 
     t0 = time.monotonic()
-    conf = ZenohOptions(mode="client", connect=target.connect, config_file=config_file).build()
-    conf.insert_json5("connect/timeout_ms", str(max(1, int(timeout * 1000))))
     where = ", ".join(target.connect) or f"the endpoints of {config_file}"
+    try:
+        conf = ZenohOptions(mode="client", connect=target.connect, config_file=config_file).build()
+    except ValueError as e:
+        return False, f"cannot connect to {where}: {e}"
+    conf.insert_json5("connect/timeout_ms", str(max(1, int(timeout * 1000))))
     try:
         session: Any = zenoh.open(conf)
     except zenoh.ZError as e:

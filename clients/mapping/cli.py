@@ -295,6 +295,8 @@ def main(argv: list[str] | None = None) -> int:
         started = client.clock()
     except FleetError as e:
         print(f"fleet-map: {e.message}", file=sys.stderr)
+        if e.code is ErrorCode.INVALID_VALUE and e.field == "connect":  # (-e, -c or --cfg)
+            return EXIT_USAGE
         return EXIT_NO_DAEMON if e.code in (ErrorCode.UNAVAILABLE, ErrorCode.TIMEOUT) else EXIT_FAILED
     missing = sorted((plan.robots or set()) - set(robots))
     if missing:

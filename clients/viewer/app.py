@@ -308,6 +308,9 @@ def main(argv: list[str] | None = None) -> int:
             timeout=DEFAULT_TIMEOUT,
         )
     except (FleetError, ValueError) as e:
+        if isinstance(e, FleetError) and e.field == "connect":  # a bad -e, -c or --cfg
+            print(f"fleet-view: error: {e.message}", file=sys.stderr)
+            return 2
         print(f"fleet-view: {e}", file=sys.stderr)
         return 1
     try:
