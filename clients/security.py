@@ -323,6 +323,9 @@ def main(argv: list[str] | None = None) -> int:
     except FleetError as e:  # a robot name the fleet would refuse
         print(f"fleet-security: error: --robots: {e.message}", file=sys.stderr)
         return 2
+    except OSError as e:  # a directory that cannot be made or written (read-only, full, /proc)
+        print(f"fleet-security: error: cannot write {e.filename or args.directory}: {e.strerror or e}", file=sys.stderr)
+        return 1
     d = args.directory
     server = "the router" if daemons else "simd"
     print(f"fleet-security: wrote a CA, {server}'s certificate for {', '.join(hosts)}, {len(users)} users and their "
