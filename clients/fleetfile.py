@@ -87,7 +87,7 @@ def _line_of(data: bytes, location: str) -> int | None:
     """The 1-based line of the YAML node at a msgspec location like ``$[2].x``."""
     try:
         node: yaml.Node | None = yaml.compose(data, Loader=yaml.SafeLoader)
-    except yaml.YAMLError:
+    except (yaml.YAMLError, RecursionError):
         return None
     for index, key in _PATH_TOKEN.findall(location[1:]):
         if isinstance(node, yaml.SequenceNode) and index:

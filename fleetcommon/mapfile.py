@@ -91,25 +91,27 @@ def read_map(yaml_path: str | os.PathLike[str]) -> OccupancyMap:
         meta = yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise MapFileError(source, f"YAML syntax error: {' '.join(str(e).split())}") from None
+    except RecursionError:
+        raise MapFileError(source, "YAML syntax error: nested too deep") from None
     if not isinstance(meta, dict):
         raise MapFileError(source, "expected a mapping with image, resolution, origin, ...")
     image_name = _field(meta, "image", str, source)
     resolution = _number(meta, "resolution", source)
     if not resolution > 0:
-        raise MapFileError(source, f"must be > 0, got {resolution}", "resolution")
+        raise MapFileError(source, f"must be > 0, got {_shown(resolution)}", "resolution")
     origin = meta.get("origin")
     if (
         not isinstance(origin, list)
         or len(origin) != 3
         or not all(isinstance(v, int | float) and math.isfinite(v) for v in origin)
     ):
-        raise MapFileError(source, f"must be [x, y, yaw] in numbers, got {origin!r}", "origin")
+        raise MapFileError(source, f"must be [x, y, yaw] in numbers, got {_shown(origin)}", "origin")
     mode = meta.get("mode", "trinary")
     if mode not in MODES:
         raise MapFileError(source, f"unknown mode {mode!r}; one of {', '.join(MODES)}", "mode")
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
-        raise MapFileError(source, f"must be 0 or 1, got {negate!r}", "negate")
+        raise MapFileError(source, f"must be 0 or 1, got {_shown(negate)}", "negate")
     occupied = _number(meta, "occupied_thresh", source, 0.65)
     free = _number(meta, "free_thresh", source, 0.25)
     if not 0 <= free <= occupied <= 1:
@@ -130,7 +132,7 @@ def _field(meta: dict[str, Any], name: str, kind: type, source: str) -> Any:
         raise MapFileError(source, "missing", name)
     value = meta[name]
     if not isinstance(value, kind):
-        raise MapFileError(source, f"must be a {kind.__name__}, got {value!r}", name)
+        raise MapFileError(source, f"must be a {kind.__name__}, got {_shown(value)}", name)
     return value
 
 
@@ -141,7 +143,7 @@ def _number(meta: dict[str, Any], name: str, source: str, default: float | None 
         raise MapFileError(source, "missing", name)
     value = meta[name]
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise MapFileError(source, f"must be a number, got {value!r}", name)
+        raise MapFileError(source, f"must be a number, got {_shown(value)}", name)
     return float(value)
 
 
@@ -270,3 +272,10 @@ def _atomic_write(path: Path, data: bytes) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _shown(value: object, most: int = 60) -> str:
+    """A value as a message quotes it: its repr, cut to ``most`` characters (a file's value
+    may be a megabyte of text)."""
+    text = repr(value)
+    return text if len(text) <= most else text[: most - 3] + "..."

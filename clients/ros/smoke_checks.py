@@ -142,7 +142,7 @@ def echoed(stdout: str) -> dict[str, Any] | None:
     body = "\n".join(lines[: lines.index("---")])
     try:
         message = yaml.safe_load(body)
-    except yaml.YAMLError:
+    except (yaml.YAMLError, RecursionError):
         return None
     return message if isinstance(message, dict) else None
 

@@ -54,7 +54,7 @@ def is_map_file(text: str) -> bool:
 
     try:
         data = yaml.safe_load(text)
-    except yaml.YAMLError:
+    except (yaml.YAMLError, RecursionError):  # (nested too deep: the world loader says so)
         return False
     return isinstance(data, dict) and "image" in data and "obstacles" not in data
 

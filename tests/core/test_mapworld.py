@@ -89,3 +89,31 @@ def test_maps_that_cannot_be_worlds(tmp_path: Path) -> None:
     (tmp_path / "bad.yaml").write_text("image: nowhere.pgm\nresolution: 0.05\norigin: [0, 0, 0]\n")
     with pytest.raises(WorldFileError, match="cannot read the map image"):
         load_world_or_map(str(tmp_path / "bad.yaml"))
+
+
+def _nested(depth: int) -> str:
+    return "[" * depth + "]" * depth
+
+
+def test_yaml_nested_past_what_python_parses_is_a_file_error(tmp_path: Path) -> None:
+    """PyYAML's pure-Python loader recurses once a level: a file nested some hundreds deep
+    raised RecursionError, a traceback out of simd (libyaml, which msgspec uses, stops at
+    1 000 levels with a syntax error of its own)."""
+    depth = 500  # (CPython's default recursion limit: enough; deeper only takes longer)
+    from clients.fleetfile import FleetFileError, load_fleet
+    from fleetcommon.mapfile import MapFileError, read_map
+
+    world = tmp_path / "world.yaml"
+    world.write_text(f"name: deep\nbounds: {_nested(depth)}\n")
+    with pytest.raises(WorldFileError):
+        load_world_or_map(str(world))
+    a_map = tmp_path / "map.yaml"
+    a_map.write_text(f"image: map.pgm\nresolution: 0.05\norigin: {_nested(depth)}\n")
+    with pytest.raises((MapFileError, WorldFileError)):
+        load_world_or_map(str(a_map))
+    with pytest.raises(MapFileError):
+        read_map(a_map)
+    fleet = tmp_path / "fleet.yaml"
+    fleet.write_text(f"- {{name: a, x: {_nested(depth)}}}\n")
+    with pytest.raises(FleetFileError):
+        load_fleet(str(fleet))
