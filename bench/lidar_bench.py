@@ -209,7 +209,7 @@ def report(name: str, t: dict[str, list[float]], sensors: int, samples: int) -> 
     return med
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--world", choices=["random", "arena"], default="random")
     ap.add_argument("--robots", type=int, default=1000)
@@ -217,7 +217,7 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=21)
     ap.add_argument("--naive-repeats", type=int, default=3)
     ap.add_argument("--profile", action="store_true", help="cProfile the numpy kernel")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
     for flag in ("robots", "sensors", "repeats", "naive_repeats"):
         if getattr(args, flag) < 1:
             ap.error(f"--{flag.replace('_', '-')} must be at least 1")

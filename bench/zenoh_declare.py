@@ -77,12 +77,18 @@ def _drive(endpoint: str, publishers: int, rate: float, batched: bool) -> None:
         threading.Thread(target=read, daemon=True).start()
         print("ready", flush=True)
         period, next_t = 1.0 / rate, time.monotonic()
+        puts, driven_s = 0, 0.0
         while not done.is_set():
             if driving.is_set():
+                t0 = time.monotonic()
                 for p in pubs:
                     p.put(payload)
-            next_t += period
+                puts += len(pubs)
+                driven_s += max(period, time.monotonic() - t0)  # a cycle late takes its own time
+            next_t = max(next_t + period, time.monotonic() - period)  # (late: no burst to catch up)
             time.sleep(max(0.0, next_t - time.monotonic()))
+        per_message = publishers if batched else 1
+        print(json.dumps({"commands_per_s": puts * per_message / driven_s if driven_s else 0.0}), flush=True)
 
 
 def _measure(s: zenoh.Session, drain: Callable[[], None], samples: int, tag: str) -> dict[str, list[float]]:
@@ -125,6 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         default="robots",
         help="a publisher per robot (default), or every command of a cycle in one message",
     )
+    ap.add_argument("--tokens", type=int, help="robots' tokens this peer holds (default: --publishers; 0: none)")
     ap.add_argument("--drive-endpoint", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.drive_endpoint:
@@ -132,17 +139,24 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.publishers < 1 or args.samples < 1 or not args.rate > 0 or args.settle < 0:
         ap.error("--publishers and --samples must be at least 1, --rate above 0, --settle not negative")
+    tokens_held = args.publishers if args.tokens is None else args.tokens
+    if tokens_held < 0:
+        ap.error("--tokens must not be negative")
     import zenoh
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with zenoh.open(_config(listen=endpoint)) as session:
         ring = session.declare_subscriber("fleet/*/cmd_vel", zenoh.handlers.RingChannel(65536))
         batches = session.declare_subscriber("fleet/commands", zenoh.handlers.RingChannel(64))
-        tokens = [session.liveliness().declare_token(f"fleet/r{i}/alive") for i in range(args.publishers)]
+        tokens = [session.liveliness().declare_token(f"fleet/r{i}/alive") for i in range(tokens_held)]
+
+        received = [0]  # robots' commands taken from the rings (a batch holds every robot's)
 
         def drain() -> None:
-            while ring.try_recv() is not None or batches.try_recv() is not None:
-                pass
+            while ring.try_recv() is not None:
+                received[0] += 1
+            while batches.try_recv() is not None:
+                received[0] += args.publishers
 
         driver = subprocess.Popen(
             [sys.executable, "-m", "bench.zenoh_declare", "--drive-endpoint", endpoint,
@@ -159,15 +173,26 @@ def main(argv: list[str] | None = None) -> int:
             driver.stdin.write("on\n")
             driver.stdin.flush()
             time.sleep(args.settle)
+            drain()
+            received[0], since = 0, time.monotonic()
             driven = _measure(session, drain, args.samples, "d")
+            drain()
+            commands_per_s = received[0] / (time.monotonic() - since)
         finally:
             driver.stdin.close()
+            said = driver.stdout.read()
             driver.wait(10.0)
+        try:
+            sent_per_s = float(json.loads(said.strip().splitlines()[-1])["commands_per_s"])
+        except (ValueError, IndexError, KeyError):
+            sent_per_s = float("nan")
         for t in tokens:
             t.undeclare()
     how = "one message a cycle on fleet/commands" if args.driver == "batched" else f"{args.publishers} publishers"
-    print(f"{args.publishers} robots' tokens here; a driver with {how}, every robot's command "
-          f"{args.rate:g} times a second when driven; {args.samples} of each operation (ms)")  # fmt: skip
+    print(f"{tokens_held} robots' tokens here; a driver with {how}, every robot's command "
+          f"{args.rate:g} times a second when driven: it put {sent_per_s:,.0f} commands a second of "
+          f"{args.publishers * args.rate:,.0f}, {commands_per_s:,.0f} a second arrived here; "
+          f"{args.samples} of each operation (ms)")  # fmt: skip
     print("| operation | quiet p50 | quiet p99 | driven p50 | driven p99 | p99 driven / quiet |")
     print("|---|---:|---:|---:|---:|---:|")
     for op in OPERATIONS:

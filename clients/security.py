@@ -324,7 +324,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fleet-security: error: --robots: {e.message}", file=sys.stderr)
         return 2
     except OSError as e:  # a directory that cannot be made or written (read-only, full, /proc)
-        print(f"fleet-security: error: cannot write {e.filename or args.directory}: {e.strerror or e}", file=sys.stderr)
+        print(f"fleet-security: error: {e.filename or args.directory}: {e.strerror or e}", file=sys.stderr)
         return 1
     d = args.directory
     server = "the router" if daemons else "simd"

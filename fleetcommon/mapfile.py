@@ -108,7 +108,7 @@ def read_map(yaml_path: str | os.PathLike[str]) -> OccupancyMap:
         raise MapFileError(source, f"must be [x, y, yaw] in numbers, got {_shown(origin)}", "origin")
     mode = meta.get("mode", "trinary")
     if mode not in MODES:
-        raise MapFileError(source, f"unknown mode {mode!r}; one of {', '.join(MODES)}", "mode")
+        raise MapFileError(source, f"unknown mode {_shown(mode)}; one of {', '.join(MODES)}", "mode")
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
         raise MapFileError(source, f"must be 0 or 1, got {_shown(negate)}", "negate")

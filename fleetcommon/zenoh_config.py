@@ -91,7 +91,7 @@ class ZenohOptions:
         try:
             return self._build(defaults)
         except zenoh.ZError as e:
-            raise ValueError(zenoh_error_text(e)) from None
+            raise ValueError(config_error_text(e)) from None
 
     def _build(self, defaults: dict[str, str] | None) -> zenoh.Config:
         import zenoh
@@ -99,7 +99,7 @@ class ZenohOptions:
         try:
             conf = zenoh.Config.from_file(self.config_file) if self.config_file else zenoh.Config()
         except zenoh.ZError as e:  # (zenoh's says what is wrong, not with which file)
-            raise ValueError(f"{self.config_file}: {zenoh_error_text(e)}") from None
+            raise ValueError(f"{self.config_file}: {config_error_text(e)}") from None
         conf.insert_json5("mode", json.dumps(self.mode))
         if self.listen:
             conf.insert_json5("listen/endpoints", json.dumps(self.listen))
@@ -117,7 +117,10 @@ class ZenohOptions:
             key, sep, value = item.partition(":")
             if not sep:
                 raise ValueError(f"--cfg expects KEY:VALUE (VALUE in JSON5), got {item!r}")
-            conf.insert_json5(key, value)
+            try:
+                conf.insert_json5(key, value)
+            except zenoh.ZError as e:
+                raise ValueError(f"--cfg {key}: {config_error_text(e)}") from None
         return conf
 
 
@@ -241,3 +244,16 @@ def zenoh_error_text(e: BaseException) -> str:
         msg = found.group(1)
     msg = re.sub(r"\s+at /\S*?\.rs:\d+\.?", "", msg)
     return msg.strip() or type(e).__name__
+
+
+def config_error_text(e: BaseException) -> str:
+    """A zenoh config error in one line: a JSON5 error's message and place without its drawing
+    (``--> 1:1 | 1 | soon | ^--- | = expected array, ...``), a key's error without ``Str("...")``."""
+    lines = [line.strip() for line in zenoh_error_text(e).replace("\\n", "\n").splitlines()]
+    place = next((line.removeprefix("--> ") for line in lines if line.startswith("--> ")), None)
+    said = next((line.removeprefix("= ") for line in lines if line.startswith("= ")), None)
+    if said is not None:
+        return f"{said} (line:column {place})" if place else said
+    text = " ".join(line for line in lines if line)
+    quoted = re.fullmatch(r'Str\("(.*)"\)', text)
+    return quoted.group(1) if quoted else text

@@ -17,8 +17,8 @@ from clients.fleet.cli import main as fleet_main
 from clients.fleet_args import build_parser
 
 ROOT = Path(__file__).resolve().parents[1]
-#: Benchmarks' helpers that other processes start, with arguments of their own, not flags.
-NOT_PROGRAMS = {"bench.sleeper", "bench.lidar_bench"}
+#: A benchmark's helper that other processes start, with an argument of its own, not flags.
+NOT_PROGRAMS = {"bench.sleeper"}
 
 
 def _scripts() -> dict[str, str]:

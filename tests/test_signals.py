@@ -34,9 +34,10 @@ def test_a_handler_sets_the_event_while_the_interrupted_thread_holds_its_lock() 
 
     waiter = threading.Thread(target=wait, daemon=True)
     waiter.start()
+    cond: Any = event._cond  # type: ignore[attr-defined]  # (threading.Event's, private)
+    assert wait_until(lambda: bool(cond._waiters), 5.0)  # the waiter is inside wait()
     with handled(signal.SIGUSR1, lambda signum, frame: event.set_from_signal()):
-        lock: Any = event._cond  # type: ignore[attr-defined]  # (threading.Event's, private)
-        with lock:  # as inside Event.wait on the main thread, when the signal lands
+        with cond:  # as inside Event.wait on the main thread, when the signal lands
             os.kill(os.getpid(), signal.SIGUSR1)
             assert wait_until(lambda: event._signalled, 5.0)  # the handler ran, and returned
             assert event.is_set() and event.wait(0.0)  # seen at once, the lock still held here
@@ -55,3 +56,12 @@ def test_it_is_an_event_otherwise() -> None:
     assert event.is_set() and event.wait()
     event.clear()
     assert not event.is_set()
+
+
+def test_cleared_before_its_waiters_are_woken_it_stays_clear() -> None:
+    first, second = SignalEvent(), SignalEvent()
+    first.set_from_signal()
+    first.clear()
+    second.set_from_signal()
+    assert wait_until(lambda: threading.Event.is_set(second), 5.0)  # the waker got to it: first is done
+    assert not first.is_set() and not first.wait(0.0)

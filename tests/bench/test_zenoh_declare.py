@@ -21,6 +21,7 @@ def test_zenoh_declare_times_each_operation_quiet_and_driven() -> None:
     assert proc.returncode == 0, proc.stderr
     rows = {line.split("|")[1].strip(): line for line in proc.stdout.splitlines() if line.startswith("| ")}
     assert set(OPERATIONS) <= set(rows)
+    assert "commands a second of 2,000" in proc.stdout.splitlines()[0] and "a second arrived here" in proc.stdout
     for op in OPERATIONS:
         numbers = [float(cell) for cell in rows[op].strip("|").split("|")[1:]]
         assert len(numbers) == 5 and all(n >= 0 for n in numbers), rows[op]
@@ -32,3 +33,8 @@ def test_bad_flags_are_one_clear_line() -> None:
         cwd=ROOT, capture_output=True, text=True, timeout=60,
     )  # fmt: skip
     assert proc.returncode == 2 and "--publishers" in proc.stderr.splitlines()[-1]
+    proc = subprocess.run(
+        [sys.executable, "-m", "bench.zenoh_declare", "--tokens", "-1"],
+        cwd=ROOT, capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert proc.returncode == 2 and "--tokens" in proc.stderr.splitlines()[-1]

@@ -111,7 +111,7 @@ def test_yaml_nested_past_what_python_parses_is_a_file_error(tmp_path: Path) -> 
     a_map.write_text(f"image: map.pgm\nresolution: 0.05\norigin: {_nested(depth)}\n")
     with pytest.raises((MapFileError, WorldFileError)):
         load_world_or_map(str(a_map))
-    with pytest.raises(MapFileError):
+    with pytest.raises(MapFileError, match="nested too deep"):
         read_map(a_map)
     fleet = tmp_path / "fleet.yaml"
     fleet.write_text(f"- {{name: a, x: {_nested(depth)}}}\n")

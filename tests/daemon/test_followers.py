@@ -141,7 +141,7 @@ def test_publishers_come_one_a_tick_in_roster_order_and_each_robot_sends_its_own
     roster order, then scans; a followed robot's comes first. Only robots with a publisher send,
     and what each sends is its own (a tick whose due scans are only partly declared encodes only
     those: they must be the right rows), byte for byte what a get of its key answers. The test
-    ticks one tick at a time and waits for its odometry to arrive: zenoh drops what a put finds
+    ticks one tick at a time and waits for its messages to arrive: zenoh drops what a put finds
     no room for (CongestionControl.DROP, the default), and a burst of ticks on a starved machine
     lost a robot's last message in CI."""
     monkeypatch.setattr(publisher_module, "DECLARE_BUDGET_S", 0.0)
@@ -154,20 +154,24 @@ def test_publishers_come_one_a_tick_in_roster_order_and_each_robot_sends_its_own
         heard: dict[str, dict[str, bytes]] = {"odom": {}, "scan": {}}
         lock = threading.Lock()
 
-        odom_heard = 0
+        counted = {"odom": 0, "scan": 0}
 
         def on(sample: zenoh.Sample) -> None:
-            nonlocal odom_heard
             _, ns, topic = str(sample.key_expr).split("/")
             with lock:
                 heard[topic][ns] = sample.payload.to_bytes()
-                odom_heard += topic == "odom"
+                counted[topic] += 1
 
         def tick_and_hear(ticks: int) -> None:
             for _ in range(ticks):
                 engine.tick()
                 assert adapter.outbox.flush()
-                assert wait_until(lambda: odom_heard == pub.odom_puts, 3.0), (odom_heard, pub.odom_puts)
+                put = {"odom": pub.odom_puts, "scan": pub.scan_puts}
+
+                def all_heard(expected: dict[str, int] = put) -> bool:
+                    return counted == expected
+
+                assert wait_until(all_heard, 3.0), (counted, put)
 
         user.declare_subscriber("fleet/*/odom", on)
         user.declare_subscriber("fleet/*/scan", on)

@@ -79,6 +79,7 @@ class Publisher:
         # change instead of once per robot per tick, and the robots still without a publisher
         self._puts = {"odom": RobotPuts(), "scan": RobotPuts()}
         self.odom_puts = 0  # per-robot odometry messages put (none while nobody subscribes)
+        self.scan_puts = 0  # per-robot scans put, likewise
         self._declared = 0  # publishers declared this tick
         self._declare_from = 0.0  # when this tick's first declaration started
         # what get P/<ns>/odom and P/<ns>/scan answer from, read on zenoh's threads
@@ -281,12 +282,14 @@ class Publisher:
             if mirrored or ready.all():
                 scans = self._scans.encode(snap.scan_namespaces, snap.time, snap.scans)
                 _send(puts, due.tolist(), scans)
+                self.scan_puts += int(ready.sum())
                 if mirrored:
                     self._mirror("scan", snap.scan_namespaces, scans)
             elif ready.any():  # only the robots with a publisher: a scan is ~1.5 kB to encode
                 picked = np.flatnonzero(ready)
                 names = [snap.scan_namespaces[k] for k in picked.tolist()]
                 _send(puts, due[picked].tolist(), self._scans.encode(names, snap.time, snap.scans[picked]))
+                self.scan_puts += len(names)
         self._publish_fleet_topics(snap)
 
     def _declare_followed(self, most: int = FOLLOWED_PER_TICK) -> None:

@@ -35,13 +35,12 @@ refuses to start on it instead, as on any bad setting.
 from __future__ import annotations
 
 import json
-import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import zenoh
 
-from fleetcommon.zenoh_config import zenoh_error_text
+from fleetcommon.zenoh_config import config_error_text
 
 DEFAULT_ROUTER = "tcp/localhost:7447"
 SESSION_CONFIG_URI = "ZENOH_SESSION_CONFIG_URI"
@@ -141,7 +140,7 @@ def apply_overrides(conf: zenoh.Config, overrides: str) -> list[str]:
         try:
             conf.insert_json5(key, value)
         except (zenoh.ZError, ValueError) as e:
-            raise RosConfigError(f"{CONFIG_OVERRIDE}: cannot set {key} to {value}: {_one_line(e)}") from e
+            raise RosConfigError(f"{CONFIG_OVERRIDE}: cannot set {key} to {value}: {config_error_text(e)}") from e
         keys.append(key)
     return keys
 
@@ -150,20 +149,7 @@ def _from_file(variable: str, path: str) -> zenoh.Config:
     try:
         return zenoh.Config.from_file(path)
     except (zenoh.ZError, ValueError, OSError) as e:
-        raise RosConfigError(f"{variable}={path}: not a usable zenoh config file: {_one_line(e)}") from e
-
-
-def _one_line(e: BaseException) -> str:
-    """A zenoh config error in one line: a JSON5 error's message and place without its drawing
-    (``--> 1:1 | 1 | soon | ^--- | = expected array, ...``), a key's error without ``Str("...")``."""
-    lines = [line.strip() for line in zenoh_error_text(e).replace("\\n", "\n").splitlines()]
-    place = next((line.removeprefix("--> ") for line in lines if line.startswith("--> ")), None)
-    said = next((line.removeprefix("= ") for line in lines if line.startswith("= ")), None)
-    if said is not None:
-        return f"{said} (line:column {place})" if place else said
-    text = " ".join(line for line in lines if line)
-    quoted = re.fullmatch(r'Str\("(.*)"\)', text)
-    return quoted.group(1) if quoted else text
+        raise RosConfigError(f"{variable}={path}: not a usable zenoh config file: {config_error_text(e)}") from e
 
 
 def _read(conf: zenoh.Config, key: str) -> object:
