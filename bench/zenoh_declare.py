@@ -1,23 +1,25 @@
-"""What a declaration costs a zenoh peer while another peer drives thousands of keys through
-it, in bare zenoh (no simd): the floor under a spawn's and a delete's reply when a driver
-commands every robot through a publisher of its own.
+"""What a driver with a publisher per robot costs a zenoh peer that holds the robots' keys,
+in bare zenoh (no simd): does every command arrive, and how long do the declarations a spawn
+and a delete make take meanwhile?
 
-    python -m bench.zenoh_declare                        # 8 000 robots' keys, driven at 10 Hz
-    python -m bench.zenoh_declare --publishers 1000      # a smaller fleet
+    python -m bench.zenoh_declare                        # 8 000 robots' keys, a client driving at 10 Hz
+    python -m bench.zenoh_declare --driver-mode peer     # the driver a zenoh peer instead
     python -m bench.zenoh_declare --driver batched       # every command of a cycle in one message
+    python -m bench.zenoh_declare --tokens 0             # the control: no keys held here
 
 This process plays the daemon: a peer that listens, holds a liveliness token per robot
 (``fleet/r<i>/alive``) and ring subscribers on ``fleet/*/cmd_vel`` and ``fleet/commands`` that
-it drains as the simulation thread does. A driver, in a process of its own, connects and
-declares a publisher per robot (``FleetClient.drive``, or a ROS tool per robot; with
-``--driver batched`` one publisher on ``fleet/commands`` that carries every robot's command of
-a cycle in one message, as ``FleetClient.drive_many``). Then, twice side by side, first with
-the driver silent (``quiet``) and then putting every robot's command at ``--rate`` Hz
-(``driven``), this process times what a spawn and a delete ask of zenoh: declare a token
-(``P/<ns>/alive``, before a spawn's reply), declare a publisher (a robot's odometry), put once
-on a key string (no publisher), undeclare the token (before a delete's reply). It prints each
-one's p50 and p99 in ms for both and the ratio driven / quiet. The numbers are in
-docs/robustness.md ("The floor under a spawn's reply").
+it drains as the simulation thread does. A driver, in a process of its own, connects (as a
+zenoh client, as FleetClient and the fleet tools do, or as a peer) and declares a publisher per
+robot (``FleetClient.drive``; with ``--driver batched`` one publisher on ``fleet/commands`` that
+carries every robot's command of a cycle in one message, as ``FleetClient.drive_many``). Then,
+twice side by side, first with the driver silent (``quiet``) and then putting every robot's
+command at ``--rate`` Hz (``driven``), this process times what a spawn and a delete ask of
+zenoh: declare a token (``P/<ns>/alive``, before a spawn's reply), declare a publisher (a
+robot's odometry), put once on a key string (no publisher), undeclare the token (before a
+delete's reply). It prints each one's p50 and p99 in ms for both, the ratio driven / quiet, and
+how many commands a second the driver put and how many arrived. The numbers are in
+docs/robustness.md ("What a publisher per robot costs zenoh").
 """
 
 from __future__ import annotations
@@ -54,14 +56,17 @@ def _config(listen: str | None = None, connect: str | None = None) -> zenoh.Conf
     return conf
 
 
-def _drive(endpoint: str, publishers: int, rate: float, batched: bool) -> None:
+def _drive(endpoint: str, publishers: int, rate: float, batched: bool, mode: str) -> None:
     """The driver: a publisher per robot (or one for all, ``batched``); puts every robot's
-    command at ``rate`` Hz while the last line read from stdin was ``on``; ends at EOF."""
+    command at ``rate`` Hz while the last line read from stdin was ``on``; ends at EOF. A
+    zenoh ``client`` (as FleetClient and the fleet tools connect) or a ``peer``."""
     import threading
 
     import zenoh
 
-    with zenoh.open(_config(connect=endpoint)) as session:
+    conf = _config(connect=endpoint)
+    conf.insert_json5("mode", json.dumps(mode))
+    with zenoh.open(conf) as session:
         if batched:  # (names and two float64 a robot, about what PackedCommands carries)
             pubs, payload = [session.declare_publisher("fleet/commands")], COMMAND[:24] * publishers
         else:
@@ -131,11 +136,17 @@ def main(argv: list[str] | None = None) -> int:
         default="robots",
         help="a publisher per robot (default), or every command of a cycle in one message",
     )
+    ap.add_argument(
+        "--driver-mode",
+        choices=("client", "peer"),
+        default="client",
+        help="how the driver connects: a zenoh client, as FleetClient and the fleet tools do (default), or a peer",
+    )
     ap.add_argument("--tokens", type=int, help="robots' tokens this peer holds (default: --publishers; 0: none)")
     ap.add_argument("--drive-endpoint", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.drive_endpoint:
-        _drive(args.drive_endpoint, args.publishers, args.rate, args.driver == "batched")
+        _drive(args.drive_endpoint, args.publishers, args.rate, args.driver == "batched", args.driver_mode)
         return 0
     if args.publishers < 1 or args.samples < 1 or not args.rate > 0 or args.settle < 0:
         ap.error("--publishers and --samples must be at least 1, --rate above 0, --settle not negative")
@@ -160,7 +171,8 @@ def main(argv: list[str] | None = None) -> int:
 
         driver = subprocess.Popen(
             [sys.executable, "-m", "bench.zenoh_declare", "--drive-endpoint", endpoint,
-             "--publishers", str(args.publishers), "--rate", str(args.rate), "--driver", args.driver],
+             "--publishers", str(args.publishers), "--rate", str(args.rate), "--driver", args.driver,
+             "--driver-mode", args.driver_mode],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, preexec_fn=PREEXEC,
         )  # fmt: skip
         assert driver.stdin is not None and driver.stdout is not None
@@ -189,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
         for t in tokens:
             t.undeclare()
     how = "one message a cycle on fleet/commands" if args.driver == "batched" else f"{args.publishers} publishers"
-    print(f"{tokens_held} robots' tokens here; a driver with {how}, every robot's command "
+    print(f"{tokens_held} robots' tokens here; a driver ({args.driver_mode}) with {how}, every robot's command "
           f"{args.rate:g} times a second when driven: it put {sent_per_s:,.0f} commands a second of "
           f"{args.publishers * args.rate:,.0f}, {commands_per_s:,.0f} a second arrived here; "
           f"{args.samples} of each operation (ms)")  # fmt: skip

@@ -21,7 +21,8 @@ def test_zenoh_declare_times_each_operation_quiet_and_driven() -> None:
     assert proc.returncode == 0, proc.stderr
     rows = {line.split("|")[1].strip(): line for line in proc.stdout.splitlines() if line.startswith("| ")}
     assert set(OPERATIONS) <= set(rows)
-    assert "commands a second of 2,000" in proc.stdout.splitlines()[0] and "a second arrived here" in proc.stdout
+    head = proc.stdout.splitlines()[0]
+    assert "a driver (client)" in head and "commands a second of 2,000" in head and "a second arrived here" in head
     for op in OPERATIONS:
         numbers = [float(cell) for cell in rows[op].strip("|").split("|")[1:]]
         assert len(numbers) == 5 and all(n >= 0 for n in numbers), rows[op]
