@@ -43,17 +43,10 @@ OPERATIONS = ("token", "publisher", "key_put", "token_undeclare")
 COMMAND, ODOMETRY = b"c" * 60, b"o" * 1100
 
 
-def _config(listen: str | None = None, connect: str | None = None) -> zenoh.Config:
-    import zenoh
+def _config(mode: str, listen: str | None = None, connect: str | None = None) -> zenoh.Config:
+    from fleetcommon.zenoh_config import ZenohOptions
 
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"peer"')
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
-    if connect:
-        conf.insert_json5("connect/endpoints", json.dumps([connect]))
-    return conf
+    return ZenohOptions(mode=mode, listen=[listen] if listen else [], connect=[connect] if connect else []).build()
 
 
 def _drive(endpoint: str, publishers: int, rate: float, batched: bool, mode: str) -> None:
@@ -64,9 +57,7 @@ def _drive(endpoint: str, publishers: int, rate: float, batched: bool, mode: str
 
     import zenoh
 
-    conf = _config(connect=endpoint)
-    conf.insert_json5("mode", json.dumps(mode))
-    with zenoh.open(conf) as session:
+    with zenoh.open(_config(mode, connect=endpoint)) as session:
         if batched:  # (names and two float64 a robot, about what PackedCommands carries)
             pubs, payload = [session.declare_publisher("fleet/commands")], COMMAND[:24] * publishers
         else:
@@ -156,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     import zenoh
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    with zenoh.open(_config(listen=endpoint)) as session:
+    with zenoh.open(_config("peer", listen=endpoint)) as session:
         ring = session.declare_subscriber("fleet/*/cmd_vel", zenoh.handlers.RingChannel(65536))
         batches = session.declare_subscriber("fleet/commands", zenoh.handlers.RingChannel(64))
         tokens = [session.liveliness().declare_token(f"fleet/r{i}/alive") for i in range(tokens_held)]

@@ -52,23 +52,26 @@ CLIENTS: list[tuple[str, Callable[[list[str]], int], list[str]]] = [
 ]
 
 
+BAD = [
+    (["-e", "nonsense"], ZENOH_SAYS),
+    (["-c", "no-such.json5"], "no-such.json5: No such file"),
+]
+
+
+@pytest.mark.parametrize(("flags", "said"), BAD, ids=["endpoint", "config file"])
 @pytest.mark.parametrize(("program", "main", "args"), CLIENTS, ids=[c[0] for c in CLIENTS])
-def test_a_malformed_endpoint_is_one_clear_line(
-    program: str, main: Callable[[list[str]], int], args: list[str], capsys: pytest.CaptureFixture[str]
+def test_a_bad_endpoint_or_config_file_is_one_clear_line(
+    program: str,
+    main: Callable[[list[str]], int],
+    args: list[str],
+    flags: list[str],
+    said: str,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
-    assert _exit_code(main, [*args, "-e", "nonsense"]) == 2
+    assert _exit_code(main, [*args, *flags]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert err and err[-1].startswith(program.split()[0]) and f"{ZENOH_SAYS}" in err[-1], err
+    assert err and err[-1].startswith(program.split()[0]) and said in err[-1], err
     assert all(".rs" not in line and "Json5Err" not in line and "Traceback" not in line for line in err), err
-
-
-@pytest.mark.parametrize(("program", "main", "args"), CLIENTS, ids=[c[0] for c in CLIENTS])
-def test_a_missing_config_file_is_named(
-    program: str, main: Callable[[list[str]], int], args: list[str], capsys: pytest.CaptureFixture[str]
-) -> None:
-    assert _exit_code(main, [*args, "-c", "no-such.json5"]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err and "no-such.json5: No such file" in err[-1], err
 
 
 def test_the_python_api_says_it_is_the_configuration() -> None:
