@@ -91,8 +91,20 @@ def simd_command(*args: str) -> list[str]:
 def start_daemon(
     tmp_path: Path, *args: str, prefix: str = "fleet", wait: float = 15.0, port: int | None = None
 ) -> Daemon:
-    """A simd on loopback (on ``port``, e.g. to restart one, else a free one), once it answers."""
-    port = port or free_port()
+    """A simd on loopback (on ``port``, e.g. to restart one, else a free one), once it answers.
+    A free port is free only when asked: another test's daemon (another xdist worker) may bind
+    it first. Then this one exits with "address already in use" and the other one answers on
+    that port, so the answer counts only from this process (its pid in ``P/daemons``), and a
+    port taken meanwhile is given up for another."""
+    for _ in range(1 if port else 3):
+        d = _start_daemon(tmp_path, args, prefix, wait, port or free_port())
+        if d is not None:
+            return d
+    raise RuntimeError(f"simd found its port taken ({port or 'three free ports in a row'})")
+
+
+def _start_daemon(tmp_path: Path, args: tuple[str, ...], prefix: str, wait: float, port: int) -> Daemon | None:
+    """The daemon once it answers; None if its port was taken before it could listen."""
     endpoint = f"tcp/127.0.0.1:{port}"
     log_path = tmp_path / f"simd-{port}.log"
     with log_path.open("w") as logf:
@@ -109,12 +121,14 @@ def start_daemon(
     wait_for_listener(port, deadline, proc)
     while time.monotonic() < deadline:
         if proc.poll() is not None:
+            if "address already in use" in d.log():
+                return None
             raise RuntimeError(f"simd exited with {proc.returncode}:\n{d.log()}")
         try:
             with FleetClient(endpoint, prefix=prefix, timeout=1.0) as c:
                 c.clock()
                 # its presence (P/daemons) is declared a moment after its clock answers
-                if c.daemons():
+                if any(info.pid == proc.pid for info in c.daemons()):
                     return d
         except FleetError:
             time.sleep(0.05)
